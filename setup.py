@@ -1,0 +1,39 @@
+"""Build script for the sins_align ament_python package (ros2/examples minimal_publisher style)."""
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'sins_align'
+
+# The one list of executables. Each lands in lib/sins_align/ (setup.cfg), where `ros2 run`
+# finds it; every tool also runs as `python -m sins_align.<tool>`.
+# Entries are added here as their modules land (align_node, imu_sim_node, replay, simulate,
+# import_imu, montecarlo). test/test_package_layout.py reads this list with ast, so keep it
+# a plain list of string literals.
+ENTRY_POINTS = [
+    'demo = sins_align.demo:main',
+]
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config',
+         sorted(glob(os.path.join(package_name, 'config', '*.yaml')))),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='sins_align developers',
+    maintainer_email='sins_align@example.com',
+    description='Strapdown INS self-alignment (roll, pitch, true heading from Earth rate) '
+                'from IMU data on a quasi-static base',
+    license='BSD-3-Clause',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': ENTRY_POINTS,
+    },
+)

@@ -1,0 +1,199 @@
+"""Rotation utilities: skew matrices, exact SO(3) exp/log, quaternions, REP-103 Euler angles.
+
+Conventions
+-----------
+- A DCM ``C`` written ``C_b^n`` rotates body vectors into the navigation frame: ``x^n = C x^b``.
+- Quaternions are stored ``[x, y, z, w]`` (ROS ``geometry_msgs/Quaternion`` order) and
+  represent the same rotation as the DCM (Hamilton convention).
+- Euler angles follow REP-103: ``C = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (fixed axes X, Y, Z).
+  With n = ENU, yaw 0 means the body x axis points East, counter-clockwise positive.
+- True heading is the azimuth of the body x axis, clockwise from North, in [0, 2*pi).
+
+Every function accepts a single item or a stack (leading dimensions) of items.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrix ``(v x)``: shape (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -v[..., 2]
+    out[..., 0, 2] = v[..., 1]
+    out[..., 1, 0] = v[..., 2]
+    out[..., 1, 2] = -v[..., 0]
+    out[..., 2, 0] = -v[..., 1]
+    out[..., 2, 1] = v[..., 0]
+    return out
+
+
+def so3_exp(rotvec: np.ndarray) -> np.ndarray:
+    """Exact exponential map ``exp((rotvec x))`` (Rodrigues), shape (..., 3) -> (..., 3, 3).
+
+    Uses Taylor series for the coefficients below 1e-4 rad, so it is exact to double precision
+    at every angle, including zero and pi.
+    """
+    rv = np.asarray(rotvec, dtype=float)
+    th2 = np.sum(rv * rv, axis=-1)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - np.cos(ths)) / (ths * ths))
+    K = skew(rv)
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def quat_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """Quaternion [x, y, z, w] of the rotation ``exp((rotvec x))``."""
+    rv = np.asarray(rotvec, dtype=float)
+    th2 = np.sum(rv * rv, axis=-1)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    ths = np.where(small, 1.0, th)
+    k = np.where(small, 0.5 - th2 / 48.0, np.sin(0.5 * ths) / ths)
+    out = np.empty(rv.shape[:-1] + (4,))
+    out[..., :3] = k[..., None] * rv
+    out[..., 3] = np.cos(0.5 * th)
+    return out
+
+
+def rotvec_from_quat(q: np.ndarray) -> np.ndarray:
+    """Rotation vector (log map) of a quaternion [x, y, z, w]; angle in [0, pi]."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., 3:4] < 0.0, -q, q)
+    s = np.linalg.norm(q[..., :3], axis=-1)
+    w = q[..., 3]
+    th = 2.0 * np.arctan2(s, w)
+    small = s < 1e-8
+    k = np.where(small, 2.0 / np.where(small, w, 1.0), th / np.where(small, 1.0, s))
+    return k[..., None] * q[..., :3]
+
+
+def quat_from_dcm(C: np.ndarray) -> np.ndarray:
+    """Quaternion [x, y, z, w] (w >= 0) of a DCM; Shepperd's method, stable at every angle."""
+    C = np.asarray(C, dtype=float)
+    tr = np.trace(C, axis1=-2, axis2=-1)
+    diag = np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 2, 2], tr], axis=-1)
+    choice = np.argmax(diag, axis=-1)
+    q = np.empty(C.shape[:-2] + (4,))
+    # candidate rows for each choice: computed for all, selected after.
+    c = C
+    cands = np.empty(C.shape[:-2] + (4, 4))
+    # choice 0: x largest
+    cands[..., 0, :] = np.stack([1 + 2 * c[..., 0, 0] - tr, c[..., 1, 0] + c[..., 0, 1],
+                                 c[..., 2, 0] + c[..., 0, 2], c[..., 2, 1] - c[..., 1, 2]], -1)
+    cands[..., 1, :] = np.stack([c[..., 1, 0] + c[..., 0, 1], 1 + 2 * c[..., 1, 1] - tr,
+                                 c[..., 2, 1] + c[..., 1, 2], c[..., 0, 2] - c[..., 2, 0]], -1)
+    cands[..., 2, :] = np.stack([c[..., 2, 0] + c[..., 0, 2], c[..., 2, 1] + c[..., 1, 2],
+                                 1 + 2 * c[..., 2, 2] - tr, c[..., 1, 0] - c[..., 0, 1]], -1)
+    cands[..., 3, :] = np.stack([c[..., 2, 1] - c[..., 1, 2], c[..., 0, 2] - c[..., 2, 0],
+                                 c[..., 1, 0] - c[..., 0, 1], 1 + tr], -1)
+    q = np.take_along_axis(cands, choice[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:4] < 0.0, -q, q)
+
+
+def dcm_from_quat(q: np.ndarray) -> np.ndarray:
+    """DCM of a quaternion [x, y, z, w] (normalised first)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - z * w)
+    out[..., 0, 2] = 2 * (x * z + y * w)
+    out[..., 1, 0] = 2 * (x * y + z * w)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - x * w)
+    out[..., 2, 0] = 2 * (x * z - y * w)
+    out[..., 2, 1] = 2 * (y * z + x * w)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product ``p * q`` of [x, y, z, w] quaternions (DCM(p) @ DCM(q))."""
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    px, py, pz, pw = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+        pw * qw - px * qx - py * qy - pz * qz,
+    ], axis=-1)
+
+
+def so3_log(C: np.ndarray) -> np.ndarray:
+    """Exact logarithm of a DCM as a rotation vector, angle in [0, pi]; stable near 0 and pi."""
+    return rotvec_from_quat(quat_from_dcm(C))
+
+
+def orthonormalize(C: np.ndarray) -> np.ndarray:
+    """Nearest rotation matrix (via the quaternion), removes round-off drift."""
+    return dcm_from_quat(quat_from_dcm(C))
+
+
+def dcm_from_rpy(rpy: np.ndarray) -> np.ndarray:
+    """DCM ``Rz(yaw) Ry(pitch) Rx(roll)`` from REP-103 [roll, pitch, yaw], rad."""
+    rpy = np.asarray(rpy, dtype=float)
+    r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    out = np.empty(rpy.shape[:-1] + (3, 3))
+    out[..., 0, 0] = cy * cp
+    out[..., 0, 1] = cy * sp * sr - sy * cr
+    out[..., 0, 2] = cy * sp * cr + sy * sr
+    out[..., 1, 0] = sy * cp
+    out[..., 1, 1] = sy * sp * sr + cy * cr
+    out[..., 1, 2] = sy * sp * cr - cy * sr
+    out[..., 2, 0] = -sp
+    out[..., 2, 1] = cp * sr
+    out[..., 2, 2] = cp * cr
+    return out
+
+
+def rpy_from_dcm(C: np.ndarray) -> np.ndarray:
+    """REP-103 [roll, pitch, yaw], rad, from a DCM.
+
+    Pitch comes from ``atan2`` (accurate near +-90 deg). At gimbal lock (|pitch| = 90 deg) roll and
+    yaw are not separable: roll is set to 0 and the whole rotation about the vertical is yaw,
+    so ``dcm_from_rpy(rpy_from_dcm(C))`` still equals ``C``.
+    """
+    C = np.asarray(C, dtype=float)
+    cp = np.hypot(C[..., 0, 0], C[..., 1, 0])
+    pitch = np.arctan2(-C[..., 2, 0], cp)
+    lock = cp < 1e-9
+    roll = np.where(lock, 0.0, np.arctan2(C[..., 2, 1], C[..., 2, 2]))
+    yaw = np.where(lock, np.arctan2(-C[..., 0, 1], C[..., 1, 1]),
+                   np.arctan2(C[..., 1, 0], C[..., 0, 0]))
+    return np.stack([roll, pitch, yaw], axis=-1)
+
+
+def heading_from_dcm(C: np.ndarray) -> np.ndarray:
+    """True heading of the body x axis, rad, clockwise from North, in [0, 2 pi).
+
+    Uses the horizontal projection of the body x axis; when that axis is vertical the
+    heading of the body y axis minus 90 deg is used instead, so the result is always defined.
+    """
+    C = np.asarray(C, dtype=float)
+    e, n = C[..., 0, 0], C[..., 1, 0]
+    vertical = np.hypot(e, n) < 1e-9
+    h = np.where(vertical, np.arctan2(C[..., 0, 1], C[..., 1, 1]) - 0.5 * np.pi,
+                 np.arctan2(e, n))
+    return np.mod(h, 2.0 * np.pi)
+
+
+def attitude_error(C_true: np.ndarray, C_est: np.ndarray) -> np.ndarray:
+    """Attitude error phi (paper eq. 15): ``C_true = exp(phi x) C_est``, rad, ENU."""
+    return so3_log(np.asarray(C_true) @ np.swapaxes(np.asarray(C_est), -1, -2))
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Wrap an angle (rad) to [-pi, pi)."""
+    return np.mod(np.asarray(a) + np.pi, 2.0 * np.pi) - np.pi

@@ -1,0 +1,310 @@
+"""Tests for the IMU simulator (sins_align.sim): exactness, statistics, determinism, streaming."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sins_align.earth import OMEGA_IE, earth_rate_enu, gravity, gravity_enu
+from sins_align.rotation import dcm_from_quat, dcm_from_rpy, so3_exp, so3_log
+from sins_align.sim import (SWAY_PRESETS, ImuSimulator, SimResult, SwayProfile, _ar1_scan,
+                            simulate, sway_profile)
+from sins_align.specs import DEG, grade_specs
+
+RPY = (30.0, -50.0, 120.0)      # a deliberately non-trivial mean attitude, deg
+ZERO = np.zeros(3)
+
+
+def _clean(duration: float, sway: str, **kw) -> SimResult:
+    return simulate(duration, rpy_deg=RPY, sway=sway, noise=False, gyro_bias=ZERO,
+                    accel_bias=ZERO, **kw)
+
+
+@pytest.fixture(scope="module", params=["car", "ship"])
+def swaying(request) -> SimResult:
+    """10 minutes at 100 Hz of error-free data on a swaying base."""
+    return _clean(600.0, request.param)
+
+
+def test_error_free_gyro_reintegrates_attitude(swaying):
+    """Re-integrating the error-free gyro from C0 with the damped attitude update
+    C_k = exp(-w_ie dt) C_{k-1} exp(w_k dt) reproduces C_true within 1e-9 rad over 10 min."""
+    r = swaying
+    assert len(r) == 60000
+    E = so3_exp(-earth_rate_enu(r.lat_rad) * r.dt)
+    steps = so3_exp(r.gyro * r.dt)
+    C = r.C0.copy()
+    worst = 0.0
+    for k in range(len(r)):
+        C = E @ C @ steps[k]
+        if k % 100 == 0 or k == len(r) - 1:
+            worst = max(worst, float(np.linalg.norm(so3_log(r.C_true[k] @ C.T))))
+        if k == 0:
+            assert np.linalg.norm(so3_log(r.C_true[0] @ C.T)) < 1e-12
+    assert worst < 1e-9
+    # the test can fail: the sway is real and the Earth rate matters at this level
+    assert np.max(np.linalg.norm(so3_log(r.C0.T @ r.C_true), axis=-1)) > 1e-4
+
+
+def test_error_free_accel_reintegrates_velocity(swaying):
+    """The damped velocity update v_k = v_{k-1} + (C_k f_k + g^n) dt driven by the error-free
+    specific force reproduces the true (bounded) velocity within 1e-9 m/s over 10 min."""
+    r = swaying
+    g_n = gravity_enu(r.lat_rad, r.height_m)
+    dv = (np.einsum("kij,kj->ki", r.C_true, r.accel) + g_n) * r.dt
+    v = r.v0 + np.cumsum(dv, axis=0)
+    assert np.max(np.abs(v - r.v_true)) < 1e-9
+    assert np.max(np.abs(r.v_true)) > 1e-3        # there is motion to reproduce
+
+
+def test_displacement_and_velocity_stay_bounded(swaying):
+    """Sway displacement and velocity stay bounded over 10 min (no drift), with the magnitudes
+    the presets promise: mm-level for the car, tenths of a metre for the ship."""
+    r = swaying
+    p = np.max(np.linalg.norm(r.p_true, axis=-1))
+    v = np.max(np.linalg.norm(r.v_true, axis=-1))
+    if r.sway.name == "car":
+        assert 1e-4 < p < 0.02 and v < 0.2
+    else:
+        assert 0.1 < p < 1.5 and v < 1.5
+    # no secular growth: the last minute is no larger than the whole run warrants
+    late = np.max(np.linalg.norm(r.p_true[-6000:], axis=-1))
+    assert late <= p
+
+
+@pytest.mark.parametrize("sway", ["car", "ship"])
+def test_velocity_is_derivative_of_displacement(sway):
+    """v_true is the time derivative of p_true (linear vibration + lever-arm effect):
+    central differences at 1 kHz agree to 0.1 % of the peak velocity."""
+    r = _clean(60.0, sway, rate=1000.0)
+    fd = (r.p_true[2:] - r.p_true[:-2]) / (2.0 * r.dt)
+    err = np.max(np.abs(fd - r.v_true[1:-1]))
+    assert err < 1e-3 * np.max(np.abs(r.v_true))
+
+
+def test_lever_arm_displacement():
+    """With angular sway only, the IMU displacement is exactly the lever-arm effect
+    p = (C_true - C_ref) l^b, so a rotation about the centre moves the IMU."""
+    prof = SwayProfile(ang_amp=(2 * DEG, 1 * DEG, 0.5 * DEG), ang_freq=(0.1, 0.15, 0.07),
+                       lever_arm=(1.0, -2.0, 3.0))
+    r = simulate(100.0, rpy_deg=RPY, sway=prof, noise=False)
+    C_ref = dcm_from_rpy(np.radians(RPY))
+    expect = (r.C_true - C_ref) @ np.array(prof.lever_arm)
+    assert np.max(np.abs(r.p_true - expect)) < 1e-12
+    assert np.max(np.abs(r.p_true)) > 0.05
+
+
+def test_static_case_exact():
+    """Static base, no errors: gyro == C^T w_ie^n to 1e-15 rad/s, accel == -C^T g^n and
+    |f| == g(lat, h); the truth is constant and equal to dcm_from_rpy(rpy)."""
+    r = simulate(10.0, lat_deg=34.0, height_m=500.0, rpy_deg=RPY, sway="none", noise=False,
+                 gyro_bias=ZERO, accel_bias=ZERO)
+    C = dcm_from_rpy(np.radians(RPY))
+    assert np.max(np.abs(r.C_true - C)) == 0.0 and np.max(np.abs(r.C0 - C)) == 0.0
+    assert np.max(np.abs(r.gyro - C.T @ earth_rate_enu(r.lat_rad))) < 1e-15
+    assert np.max(np.abs(r.accel - (-C.T @ gravity_enu(r.lat_rad, 500.0)))) < 1e-12
+    assert np.allclose(np.linalg.norm(r.accel, axis=-1), gravity(r.lat_rad, 500.0),
+                       rtol=0, atol=1e-12)
+    assert np.all(r.v_true == 0.0) and np.all(r.p_true == 0.0)
+
+
+@pytest.mark.parametrize("lat", [-90.0, -60.0, 0.0, 34.0, 61.0, 89.999, 90.0])
+def test_earth_rate_magnitude_any_latitude(lat):
+    """At any latitude, poles included, a static error-free gyro measures |w| == OMEGA_IE,
+    and in ENU the rate is [0, w cos L, w sin L]."""
+    r = simulate(1.0, lat_deg=lat, rpy_deg=(170.0, 80.0, -135.0), noise=False,
+                 gyro_bias=ZERO, accel_bias=ZERO)
+    assert np.allclose(np.linalg.norm(r.gyro, axis=-1), OMEGA_IE, rtol=1e-12, atol=0)
+    w_n = np.einsum("kij,kj->ki", r.C_true, r.gyro)
+    assert np.allclose(w_n, [0.0, OMEGA_IE * np.cos(np.radians(lat)),
+                             OMEGA_IE * np.sin(np.radians(lat))], rtol=0, atol=1e-18)
+
+
+def test_time_stamps_and_quaternions():
+    """t[k] = t0 + (k+1)/rate; quat_true is the [x, y, z, w] quaternion of C_true."""
+    r = simulate(3.0, rate=200.0, t0=1.7e9, sway="ship", noise=False)
+    k = np.arange(len(r))
+    assert len(r) == 600
+    assert np.array_equal(r.t, 1.7e9 + (k + 1) / 200.0)
+    assert np.allclose(dcm_from_quat(r.quat_true), r.C_true, atol=1e-14)
+
+
+def test_sway_presets_amplitudes():
+    """The presets move the attitude as advertised: ship roll ~3 deg, pitch ~1 deg about the
+    body axes; car bursts between 0.02 and 0.3 deg; amplitude scales the motion linearly."""
+    C_ref = dcm_from_rpy(np.radians(RPY))
+    ship = _clean(60.0, "ship")
+    th = so3_log(C_ref.T @ ship.C_true)
+    peak = np.degrees(np.max(np.abs(th), axis=0))
+    assert np.allclose(peak, [3.0, 1.0, 0.5], rtol=0.02)
+    car = _clean(600.0, "car")
+    peak = np.degrees(np.max(np.linalg.norm(so3_log(C_ref.T @ car.C_true), axis=-1)))
+    assert 0.02 < peak < 0.3 * np.sqrt(2.0) + 0.05
+    car2 = _clean(600.0, "car", sway_amplitude=2.0)
+    th1 = so3_log(C_ref.T @ car.C_true)
+    th2 = so3_log(C_ref.T @ car2.C_true)
+    assert np.allclose(th2, 2.0 * th1, atol=1e-12)
+    none = _clean(10.0, "car", sway_amplitude=0.0)
+    assert np.all(none.C_true == C_ref)
+
+
+def test_white_noise_statistics():
+    """Gyro/accel white noise has per-sample std arw/sqrt(dt) and vrw/sqrt(dt) (within 3 %),
+    zero mean, and the constant biases show up as the mean error."""
+    sp = grade_specs("tactical")
+    r = simulate(600.0, specs=sp, sway="car", seed=3)
+    eg = r.gyro - r.gyro_ideal
+    ea = r.accel - r.accel_ideal
+    n = len(r)
+    sg, sa = sp.gyro_arw * np.sqrt(r.rate), sp.accel_vrw * np.sqrt(r.rate)
+    assert np.allclose(np.std(eg, axis=0), sg, rtol=0.03)
+    assert np.allclose(np.std(ea, axis=0), sa, rtol=0.03)
+    assert np.all(np.abs(np.mean(eg, axis=0) - r.gyro_bias) < 4 * sg / np.sqrt(n))
+    assert np.all(np.abs(np.mean(ea, axis=0) - r.accel_bias) < 4 * sa / np.sqrt(n))
+    # white: neighbouring samples uncorrelated
+    x = eg - eg.mean(axis=0)
+    rho = np.sum(x[1:] * x[:-1], axis=0) / np.sum(x * x, axis=0)
+    assert np.all(np.abs(rho) < 4 / np.sqrt(n))
+
+
+def test_bias_draws_follow_specs():
+    """Constant biases are drawn N(0, spec) per axis: over 400 seeds the sample std is within
+    10 % of the spec and the mean is near zero; explicit biases override the draw."""
+    sp = grade_specs("consumer")
+    gb = np.array([simulate(0.01, specs=sp, seed=s).gyro_bias for s in range(400)])
+    ab = np.array([simulate(0.01, specs=sp, seed=s).accel_bias for s in range(400)])
+    assert abs(np.std(gb) / sp.gyro_bias - 1.0) < 0.1
+    assert abs(np.std(ab) / sp.accel_bias - 1.0) < 0.1
+    assert abs(np.mean(gb)) < 4 * sp.gyro_bias / np.sqrt(gb.size)
+    assert abs(np.mean(ab)) < 4 * sp.accel_bias / np.sqrt(ab.size)
+    r = simulate(1.0, specs=sp, gyro_bias=(1e-3, 2e-3, 3e-3), accel_bias=(0.1, 0.2, 0.3),
+                 noise=False)
+    assert np.array_equal(r.gyro_bias, [1e-3, 2e-3, 3e-3])
+    assert np.allclose(r.gyro - r.gyro_ideal, [1e-3, 2e-3, 3e-3], rtol=0, atol=1e-15)
+    assert np.allclose(r.accel - r.accel_ideal, [0.1, 0.2, 0.3], rtol=0, atol=1e-14)
+
+
+def test_gauss_markov_bias_wander():
+    """Bias instability is a first-order Gauss-Markov process: stationary std equal to the
+    spec (within 15 %) and autocorrelation exp(-1) at a lag of one correlation time."""
+    sp = grade_specs("tactical").with_(gyro_bias_instability=1e-4, accel_bias_instability=1e-3,
+                                       bias_correlation_time=1.0)
+    r = simulate(600.0, specs=sp, seed=5)
+    for drift, sigma in ((r.gyro_drift, 1e-4), (r.accel_drift, 1e-3)):
+        assert np.allclose(np.std(drift, axis=0), sigma, rtol=0.15)
+        x = drift - drift.mean(axis=0)
+        lag = int(round(1.0 * r.rate))
+        rho = np.sum(x[lag:] * x[:-lag], axis=0) / np.sum(x * x, axis=0)
+        assert np.allclose(rho, np.exp(-1.0), atol=0.08)
+    assert np.allclose(r.gyro - r.gyro_ideal - r.gyro_bias - r.gyro_drift, 0.0, atol=0.02)
+    off = simulate(10.0, specs=sp, seed=5, noise=False)
+    assert np.all(off.gyro_drift == 0.0) and np.all(off.gyro == off.gyro_ideal + off.gyro_bias)
+
+
+def test_gauss_markov_recursion_every_sample():
+    """The wander obeys b_k = a b_{k-1} + sqrt(1 - a^2) sigma w_k at every sample, internal
+    chunk boundaries included: the innovations are white with the right std, none is an outlier."""
+    tau, sigma = 100.0, 1e-4
+    sp = grade_specs("tactical").with_(gyro_bias_instability=sigma, bias_correlation_time=tau)
+    r = simulate(600.0, specs=sp, seed=8)
+    a = np.exp(-r.dt / tau)
+    c = np.sqrt(1.0 - a * a) * sigma
+    e = r.gyro_drift[1:] - a * r.gyro_drift[:-1]
+    assert np.allclose(np.std(e, axis=0), c, rtol=0.03)
+    assert np.max(np.abs(e)) < 6.0 * c
+
+
+@pytest.mark.parametrize("a", [0.0, 0.5, 0.999])
+def test_ar1_scan_matches_recursion(a):
+    """The vectorised Gauss-Markov scan equals the plain recursion y_j = a y_{j-1} + u_j,
+    also when it must split the block to avoid overflow (small a)."""
+    rng = np.random.default_rng(1)
+    u = rng.standard_normal((4096, 3))
+    y0 = rng.standard_normal(3)
+    ref = np.empty_like(u)
+    y = y0
+    for j in range(len(u)):
+        y = a * y + u[j]
+        ref[j] = y
+    assert np.allclose(_ar1_scan(y0, u, a), ref, rtol=1e-12, atol=1e-12)
+
+
+def test_quantization_carries_residual():
+    """Quantised increments are integer multiples of the quantum, and the running sum of the
+    quantised increments stays within half a quantum of the unquantised one: nothing is lost."""
+    qg, qa = 1e-6, 1e-3
+    sp = grade_specs("navigation").with_(gyro_quantization=qg, accel_quantization=qa)
+    kw = dict(specs=sp, sway="car", noise=False, seed=2)
+    r = simulate(100.0, **kw)
+    raw = simulate(100.0, **dict(kw, specs=grade_specs("navigation")))
+    for out, ref, q in ((r.gyro, raw.gyro, qg), (r.accel, raw.accel, qa)):
+        counts = out * r.dt / q
+        assert np.allclose(counts, np.round(counts), rtol=0, atol=1e-6)
+        diff = np.cumsum(out * r.dt, axis=0) - np.cumsum(ref * r.dt, axis=0)
+        assert np.max(np.abs(diff)) <= 0.5 * q * (1 + 1e-6) + 1e-9
+        assert np.max(np.abs(out - ref)) > 0.1 * q / r.dt      # quantisation is applied
+
+
+def test_seed_determinism():
+    """Same seed => bit-identical samples and truth; a different seed => different noise,
+    biases and sway realisation."""
+    kw = dict(duration=60.0, specs="tactical", sway="car")
+    a, b, c = simulate(seed=11, **kw), simulate(seed=11, **kw), simulate(seed=12, **kw)
+    for name in ("gyro", "accel", "C_true", "v_true", "gyro_bias", "accel_bias"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert not np.array_equal(a.gyro, c.gyro)
+    assert not np.array_equal(a.gyro_bias, c.gyro_bias)
+    assert not np.array_equal(a.C_true, c.C_true)
+
+
+def test_streaming_equals_batch():
+    """ImuSimulator.next_block calls of varying sizes, concatenated, are bit-identical to
+    simulate() with the same arguments (noise, wander, quantisation and bursts included)."""
+    sp = grade_specs("tactical").with_(gyro_bias_instability=1e-5, accel_bias_instability=1e-4,
+                                       bias_correlation_time=2.0, gyro_quantization=1e-7,
+                                       accel_quantization=1e-4)
+    args = dict(rate=100.0, lat_deg=-20.0, height_m=30.0, rpy_deg=(5.0, 170.0, -60.0),
+                specs=sp, sway="car", sway_amplitude=1.5, seed=99, t0=12.5)
+    batch = simulate(200.0, **args)
+    sim = ImuSimulator(**args)
+    sizes = [1, 7, 0, 100, 4095, 3, 5000, 1, 4096, 2500]
+    sizes.append(len(batch) - sum(sizes))
+    blocks = [sim.next_block(n) for n in sizes]
+    assert [len(b) for b in blocks] == sizes
+    for name in ("t", "gyro", "accel", "C_true", "quat_true", "v_true", "p_true"):
+        joined = np.concatenate([getattr(b, name) for b in blocks])
+        assert np.array_equal(joined, getattr(batch, name)), name
+    assert np.array_equal(blocks[-1].C0, batch.C0)
+    assert np.array_equal(blocks[0].gyro_bias, batch.gyro_bias)
+
+
+def test_presets_exist_and_bad_arguments_raise():
+    """The 'none', 'car' and 'ship' presets exist; unknown names and bad numbers raise
+    ValueError with a message naming the problem."""
+    assert {"none", "car", "ship"} <= set(SWAY_PRESETS)
+    assert sway_profile("none").is_static
+    assert sway_profile("ship", 0.5).ang_amp[0] == pytest.approx(1.5 * DEG)
+    bad_profiles = [(("boat",), "unknown sway"), (("car", -1.0), "amplitude"),
+                    (("car", float("nan")), "amplitude")]
+    for args, msg in bad_profiles:
+        with pytest.raises(ValueError, match=msg):
+            sway_profile(*args)
+    bad_sims = [
+        (dict(duration=0.0), "duration"), (dict(duration=-1.0), "duration"),
+        (dict(duration=1.0, rate=0.0), "rate"), (dict(duration=1.0, rate=float("inf")), "rate"),
+        (dict(duration=1.0, lat_deg=90.5), "lat_deg"),
+        (dict(duration=1.0, lat_deg=float("nan")), "lat_deg"),
+        (dict(duration=1.0, height_m=float("nan")), "height_m"),
+        (dict(duration=1.0, rpy_deg=(0.0, 0.0)), "rpy_deg"),
+        (dict(duration=1.0, specs="spacegrade"), "grade"),
+        (dict(duration=1.0, sway="boat"), "sway"),
+        (dict(duration=1.0, sway_amplitude=-2.0), "amplitude"),
+        (dict(duration=1.0, gyro_bias=(0.0, np.inf, 0.0)), "gyro_bias"),
+        (dict(duration=0.001, rate=100.0), "shorter than one sample"),
+    ]
+    for kw, msg in bad_sims:
+        with pytest.raises(ValueError, match=msg):
+            simulate(**kw)
+    with pytest.raises(ValueError, match="n must be"):
+        ImuSimulator().next_block(-1)
+    with pytest.raises(ValueError, match="burst_damping"):
+        SwayProfile(burst_damping=1.5)
