@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
-from .kalman import discretize, joseph_update
+from .kalman import discretize, joseph_update, nis
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
 from .rotation import dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm, so3_exp
@@ -110,7 +110,7 @@ class AlignConfig:
     aligned_min_level_std_deg: float = 0.01
     aligned_min_heading_std_deg: float = 0.1
     heading_max_limit_std_deg: float = 10.0
-    disturbance_nis: float = 10.0
+    disturbance_nis: float = 3.0
 
     def __post_init__(self):
         if isinstance(self.specs, str):
@@ -152,28 +152,232 @@ def _check(ok: bool, msg: str):
         raise ValueError(msg)
 
 
-@dataclass
-class _Pass:
-    """Filter state of one pass."""
+class AlignmentFilter:
+    """The filter itself, vectorised over N independent runs that share one time line.
 
-    C: np.ndarray                 # C_b^n estimate
-    v: np.ndarray                 # velocity estimate, m/s ENU
-    P: np.ndarray                 # (6, 6) error covariance from noise (what the gain uses)
-    S: np.ndarray                 # (6, 6) sensitivity of the error to ENU biases [accel; gyro]
-    fine: bool
-    R: np.ndarray                 # (3, 3) measurement noise
-    v_sum: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    t_acc: float = 0.0            # time accumulated since the last fine update
-    t_int: float = 0.0            # integrated time since the pass started
-    nis_mean: float = 0.0         # running mean NIS per dof (fine pass)
-    updates: int = 0
+    No input checking: callers hand it accepted samples only. :class:`Aligner` (N = 1)
+    wraps it for streaming data; Monte Carlo and batch tools drive N runs at once. With
+    the 'constant' model the coarse-pass covariance and gain do not depend on the data,
+    so they are computed once and shared by all runs (shape (1, 6, 6)).
+
+    Parameters
+    ----------
+    config : AlignConfig
+    C0 : ndarray (N, 3, 3) — initial C_b^n estimate of each run.
+    """
+
+    def __init__(self, config: AlignConfig, C0: np.ndarray):
+        self.config = c = config
+        self.lat = c.latitude_deg * DEG
+        self.w_ie = earth_rate_enu(self.lat)
+        self.g_n = gravity_enu(self.lat, c.height_m)
+        self.g = -self.g_n[2]
+        sp = c.specs
+        self.Qc = np.diag([sp.gyro_arw ** 2] * 3 + [sp.accel_vrw ** 2] * 3)
+        self.bias_cov = np.diag([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
+        self.Gamma = bias_input_matrix(c.model)
+        self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
+        self._cache: dict = {}
+        C0 = np.asarray(C0, dtype=float).reshape(-1, 3, 3)
+        self.n = len(C0)
+        self._start_pass(C0, fine=False, std=c.coarse_initial_std_deg,
+                         R=np.eye(3)[None] * c.coarse_velocity_noise ** 2)
+        self.stage = "coarse"
+        self.backtracked = False
+        self.fine_R_std: np.ndarray | None = None
+        self.fine_period = c.fine_update_period
+        self._buf = _SampleBuffer(self.n) if c.backtrack else None
+        self._B = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
+
+    # ------------------------------------------------------------------ state
+    def _start_pass(self, C0, fine: bool, std, R):
+        lv, hd = std[0] * DEG, std[1] * DEG
+        P = np.zeros((1, 6, 6))
+        P[0, :3, :3] = np.diag([lv ** 2, lv ** 2, hd ** 2])
+        P[0, 3:, 3:] = np.eye(3) * self.config.initial_velocity_std ** 2
+        self.C = np.array(C0, dtype=float)
+        self.v = np.zeros((self.n, 3))
+        self.P = P                     # noise covariance, (1|N, 6, 6): what the gain uses
+        self.S = np.zeros((1, 6, 6))   # sensitivity of the error to ENU biases [accel; gyro]
+        self.R = R                     # measurement noise, (1|N, 3, 3)
+        self.fine = fine
+        self.v_sum = np.zeros((self.n, 3))
+        self.t_acc = 0.0               # time since the last fine update
+        self.t_int = 0.0               # integrated time since this pass started
+        self.nis_mean = np.zeros(self.n)
+        self.updates = 0
+
+    def total_covariance(self) -> np.ndarray:
+        """Noise covariance plus the bias-induced part ``S Sigma_b S^T``, (1|N, 6, 6)."""
+        return self.P + self.S @ self.bias_cov @ np.swapaxes(self.S, -1, -2)
+
+    # ------------------------------------------------------------------ one sample
+    def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0):
+        """One accepted IMU sample for every run: w, f (N, 3); dt, gap shared (s)."""
+        if self._buf is not None and not self.backtracked:
+            self._buf.append(dt, w, f, gap)
+            self._B = self._B @ so3_exp(w * dt)
+        self._advance(dt, w, f, gap)
+        if (self._buf is not None and not self.backtracked
+                and self.t_int >= self.config.backtrack_time):
+            self.backtrack()
+
+    def run(self, dt, w: np.ndarray, f: np.ndarray):
+        """Many samples: dt scalar or (T,), w and f (T, N, 3) (or (T, 3) when N = 1)."""
+        w = np.asarray(w, dtype=float).reshape(len(w), self.n, 3)
+        f = np.asarray(f, dtype=float).reshape(len(f), self.n, 3)
+        dts = np.broadcast_to(np.asarray(dt, dtype=float), (len(w),))
+        for k in range(len(w)):
+            self.step(float(dts[k]), w[k], f[k])
+
+    def _earth_step(self, dt):
+        key = ("E", dt)
+        E = self._cache.get(key)
+        if E is None:
+            E = so3_exp(-self.w_ie * dt)
+            if len(self._cache) < 256:
+                self._cache[key] = E
+        return E
+
+    def _disc(self, F, dt):
+        if F.ndim == 3:
+            return discretize(F, self.Qc, dt)
+        key = ("D", dt)
+        hit = self._cache.get(key)
+        if hit is None:
+            hit = discretize(F, self.Qc, dt)
+            if len(self._cache) < 256:
+                self._cache[key] = hit
+        return hit
+
+    def _F(self, fn):
+        model = self.config.model
+        if model == "constant":
+            return self._Fconst
+        return system_matrix(model, self.w_ie, self.g_n, fn, self.v)
+
+    def _propagate(self, F, dt):
+        Phi, Qd = self._disc(F, dt)
+        self.P = Phi @ self.P @ np.swapaxes(Phi, -1, -2) + Qd
+        self.S = Phi @ self.S + self.Gamma * dt
+
+    def _advance(self, dt, w, f, gap):
+        """Mechanization (paper eq. 1), covariance propagation, and an update when due."""
+        if gap > 0.0:
+            # bridged as static: the state stays, the errors grow over the gap
+            self._propagate(self._F(-self.g_n + 0.0 * self.v), gap)
+        self.C = self._earth_step(dt) @ self.C @ so3_exp(w * dt)
+        fn = (self.C @ f[..., None])[..., 0]
+        self.v = self.v + (fn + self.g_n) * dt
+        self.t_int += dt
+        F = self._F(fn)
+        self._propagate(F, dt)
+        H = measurement_matrix(self.config.model, self.v)
+        if not self.fine:
+            self._correct(self.v, H)
+            return
+        self.v_sum += self.v * dt
+        self.t_acc += dt
+        if self.t_acc >= self.fine_period - 0.5 * dt:
+            Ha = averaged_measurement_matrix(H, F, self.t_acc)
+            self._correct(self.v_sum / self.t_acc, Ha)
+            self.v_sum = np.zeros((self.n, 3))
+            self.t_acc = 0.0
+
+    def _correct(self, z, H):
+        Ptot = self.total_covariance()
+        x, self.P, K = joseph_update(self.P, z, H, self.R)
+        self.S = self.S - K @ (H @ self.S)
+        Ht = np.swapaxes(H, -1, -2)
+        r = nis(z, H @ Ptot @ Ht + self.R) / 3.0
+        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x)
+        self.updates += 1
+        a = 0.1 if self.updates > 10 else 1.0 / self.updates
+        self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
+
+    # ------------------------------------------------------------------ backtrack
+    def backtrack(self):
+        """Carry the estimate back to the first sample and rerun the buffer in the fine pass.
+
+        Without feedback the damped mechanization gives ``C(T) = exp(-W T) C(0) B(T)`` where
+        ``B`` is the body rotation integrated from the gyro, so the current estimate implies
+        ``C(0) = exp(W T) C(T) B(T)^T`` exactly, whatever the corrections were.
+        """
+        c = self.config
+        C0 = so3_exp(self.w_ie * self.t_int) @ self.C @ np.swapaxes(self._B, -1, -2)
+        dt, w, f, gap = self._buf.arrays()
+        r_std, self.fine_period = self._sway_velocity_std(C0, dt, w, f)
+        self.fine_R_std = r_std
+        R = np.zeros((self.n, 3, 3))
+        R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
+        self._start_pass(C0, fine=True, std=c.fine_initial_std_deg, R=R)
+        self.stage = "fine"
+        self.backtracked = True
+        self._buf = None
+        for k in range(len(dt)):
+            self._advance(float(dt[k]), w[k], f[k], float(gap[k]))
+
+    def _sway_velocity_std(self, C0, dt, w, f):
+        """Measure the sway velocity; pick the fine update period and its noise.
+
+        Open-loop damped mechanization from ``C0`` over the buffer; a cubic per axis removes
+        the drift due to the remaining attitude error; what is left is sway velocity plus
+        VRW wander. For each candidate period (``fine_update_period`` times 1, 2, 5, 10, 20)
+        the interval means are differenced; the first period whose differences look white
+        (lag-1 autocorrelation below 0.4 on every axis: slow ship-like sway is averaged over)
+        is used, with half their mean square as the measurement noise (per run, per axis),
+        floored by the VRW term and ``fine_min_velocity_noise``.
+
+        Returns
+        -------
+        r_std : ndarray (N, 3), m/s ; period : float, s
+        """
+        c = self.config
+        C = C0.copy()
+        v = np.zeros((self.n, 3))
+        vs = np.empty((len(dt), self.n, 3))
+        for k in range(len(dt)):
+            d = float(dt[k])
+            C = self._earth_step(d) @ C @ so3_exp(w[k] * d)
+            v = v + ((C @ f[k][..., None])[..., 0] + self.g_n) * d
+            vs[k] = v
+        t = np.cumsum(dt)
+        tn = (t - t.mean()) / (t.std() + 1e-12)
+        A = np.vander(tn, 4)
+        Y = vs.reshape(len(dt), -1)
+        coef, *_ = np.linalg.lstsq(A, Y, rcond=None)
+        res = Y - A @ coef
+        period = base = c.fine_update_period
+        r_std = None
+        for mult in (1, 2, 5, 10, 20):
+            p = base * mult
+            idx = np.floor(t / p).astype(int)
+            n_int = int(idx[-1])
+            if n_int < 8:
+                break
+            keep = idx < n_int
+            sums = np.zeros((n_int, Y.shape[1]))
+            np.add.at(sums, idx[keep], res[keep])
+            means = sums / np.maximum(np.bincount(idx[keep], minlength=n_int), 1)[:, None]
+            d = np.diff(means, axis=0)
+            var = 0.5 * np.mean(d ** 2, axis=0)
+            r1 = np.sum(d[1:] * d[:-1], axis=0) / np.maximum(np.sum(d * d, axis=0), 1e-300)
+            floor2 = c.specs.accel_vrw ** 2 * p / 3.0 + c.fine_min_velocity_noise ** 2
+            period, r_std = p, np.sqrt(np.maximum(var, floor2)).reshape(self.n, 3)
+            if np.all(r1 < 0.4):
+                break
+        if r_std is None:
+            floor2 = c.specs.accel_vrw ** 2 * base / 3.0 + c.fine_min_velocity_noise ** 2
+            r_std = np.full((self.n, 3), math.sqrt(floor2))
+        return r_std, period
 
 
 class Aligner:
-    """Streaming SINS self-alignment on a quasi-static base.
+    """Streaming SINS self-alignment on a quasi-static base (one IMU).
 
     Feed samples with :meth:`update` (one sample or a block); read the result at any time
-    from :attr:`quaternion`, :attr:`covariance`, :attr:`aligned` and friends.
+    from :attr:`quaternion`, :attr:`covariance`, :attr:`aligned` and friends. Invalid
+    samples are rejected with a reason (:data:`REJECT_REASONS`) and never touch the state.
 
     Parameters
     ----------
@@ -188,25 +392,16 @@ class Aligner:
 
     def __init__(self, config: AlignConfig):
         self.config = config
-        c = config
-        self.lat = c.latitude_deg * DEG
-        self.w_ie = earth_rate_enu(self.lat)
-        self.g_n = gravity_enu(self.lat, c.height_m)
-        self.g = -self.g_n[2]
-        sp = c.specs
-        self.Qc = np.diag([sp.gyro_arw ** 2] * 3 + [sp.accel_vrw ** 2] * 3)
-        self.bias_cov = np.diag([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
-        self.Gamma = bias_input_matrix(c.model)
-        self.limit_cov = limit_covariance(self.lat, sp, self.g)
+        self.lat = config.latitude_deg * DEG
+        self.g = -gravity_enu(self.lat, config.height_m)[2]
+        self.limit_cov = limit_covariance(self.lat, config.specs, self.g)
         self.limit_std = np.sqrt(np.diag(self.limit_cov))
         self.heading_observable = bool(
             np.isfinite(self.limit_std[2])
-            and self.limit_std[2] < c.heading_max_limit_std_deg * DEG)
-        self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
-        self._disc_cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+            and self.limit_std[2] < config.heading_max_limit_std_deg * DEG)
         self.reset()
 
-    # ------------------------------------------------------------------ public state
+    # ------------------------------------------------------------------ lifecycle
     def reset(self):
         """Forget everything but the configuration (counters included)."""
         c = self.config
@@ -224,44 +419,37 @@ class Aligner:
 
     def _restart_filter(self):
         c = self.config
-        C0 = np.eye(3) if c.initial_rpy_deg is None else dcm_from_rpy(np.array(c.initial_rpy_deg) * DEG)
-        self.pass_ = self._new_pass(C0, fine=not c.backtrack and False, std=c.coarse_initial_std_deg,
-                                    R=np.eye(3) * c.coarse_velocity_noise ** 2)
-        self.stage = "coarse"
-        self.backtracked = False
-        self.fine_R_std = None
-        self._buf = _SampleBuffer() if c.backtrack else None
-        self._B = np.eye(3)           # body rotation since the first sample (backtrack)
+        C0 = np.eye(3) if c.initial_rpy_deg is None else dcm_from_rpy(
+            np.array(c.initial_rpy_deg) * DEG)
+        self.filter = AlignmentFilter(c, C0[None])
         self._aligned = False
         self.time_to_aligned: float | None = None
 
-    def _new_pass(self, C0, fine, std, R) -> _Pass:
-        P = np.zeros((6, 6))
-        lv, hd = std[0] * DEG, std[1] * DEG
-        P[:3, :3] = np.diag([lv ** 2, lv ** 2, hd ** 2])
-        P[3:, 3:] = np.eye(3) * self.config.initial_velocity_std ** 2
-        return _Pass(C=np.array(C0, dtype=float), v=np.zeros(3), P=P, S=np.zeros((6, 6)),
-                     fine=fine, R=R)
+    # ------------------------------------------------------------------ results
+    @property
+    def stage(self) -> str:
+        """'coarse' (paper filter on live data) or 'fine' (after the backtrack)."""
+        return self.filter.stage
 
     @property
     def dcm(self) -> np.ndarray:
         """C_b^n estimate, (3, 3): rotates IMU-frame vectors into ENU."""
-        return self.pass_.C
+        return self.filter.C[0]
 
     @property
     def quaternion(self) -> np.ndarray:
         """Orientation of the IMU frame in ENU, [x, y, z, w] (C_b^n, as imu_filter_madgwick)."""
-        return quat_from_dcm(self.pass_.C)
+        return quat_from_dcm(self.dcm)
 
     @property
     def rpy_deg(self) -> np.ndarray:
         """REP-103 [roll, pitch, yaw], deg (yaw 0 = x axis East, counter-clockwise)."""
-        return rpy_from_dcm(self.pass_.C) / DEG
+        return rpy_from_dcm(self.dcm) / DEG
 
     @property
     def heading_deg(self) -> float:
         """True heading of the IMU x axis, deg clockwise from North, [0, 360)."""
-        return float(heading_from_dcm(self.pass_.C) / DEG)
+        return float(heading_from_dcm(self.dcm) / DEG)
 
     @property
     def covariance(self) -> np.ndarray:
@@ -271,7 +459,7 @@ class Aligner:
         the specs (consider analysis). When heading is unobservable the U row/column is
         cleared and its variance set to pi^2.
         """
-        P = self._total_cov(self.pass_)[:3, :3]
+        P = self.filter.total_covariance()[0, :3, :3].copy()
         if not self.heading_observable:
             P[2, :] = 0.0
             P[:, 2] = 0.0
@@ -290,18 +478,18 @@ class Aligner:
 
     @property
     def nis(self) -> float:
-        """Running mean normalised innovation squared per degree of freedom (fine pass)."""
-        return self.pass_.nis_mean
+        """Running mean normalised innovation squared per degree of freedom."""
+        return float(self.filter.nis_mean[0])
 
     @property
     def disturbed(self) -> bool:
-        """True when the innovations no longer fit a quasi-static base (the platform moves)."""
-        return self.pass_.fine and self.pass_.updates >= 5 and \
-            self.pass_.nis_mean > self.config.disturbance_nis
+        """True when the fine-pass innovations no longer fit a quasi-static base (motion)."""
+        f = self.filter
+        return bool(f.fine and f.updates >= 5 and f.nis_mean[0] > self.config.disturbance_nis)
 
     @property
     def aligned(self) -> bool:
-        """Aligned flag (see :meth:`_aligned_now` for the criteria). Latches until disturbed."""
+        """Aligned flag (criteria in :meth:`aligned_now`). Latches until disturbed or fault."""
         return self._aligned
 
     @property
@@ -354,9 +542,10 @@ class Aligner:
         if not (math.isfinite(t) and np.isfinite(w).all() and np.isfinite(f).all()):
             return self._reject("nonfinite")
         if self.t_last is None:
-            # first sample: anchors time only (no interval to integrate over)
+            # the first sample anchors time; it has no interval to integrate over
             self.t_first = self.t_last = t
-            return self._reject_first(w, f)
+            self.events["first_sample"] += 1
+            return 0
         dt = t - self.t_last
         if dt == 0.0:
             return self._reject("duplicate_stamp")
@@ -373,12 +562,12 @@ class Aligner:
         nom = self.nominal_dt
         if nom is not None and dt < c.min_dt_ratio * nom:
             return self._reject("dt_too_small")
-        fn = float(np.linalg.norm(f))
+        fn = math.sqrt(float(f @ f))
         if fn < 0.25 * self.g:
             return self._reject("gravity_removed")
         if abs(fn - self.g) > c.specific_force_tolerance * self.g:
             return self._reject("specific_force_out_of_range")
-        if float(np.linalg.norm(w)) > c.max_angular_rate:
+        if math.sqrt(float(w @ w)) > c.max_angular_rate:
             return self._reject("rate_too_high")
         if self._units is not None:
             self._units.add(dt, w, f)
@@ -390,159 +579,26 @@ class Aligner:
             gap, dt = dt - nom, nom
             self.events["gap"] += 1
         self.t_last = t
-        self._accept(dt, w, f, gap)
+        self.samples_used += 1
+        self.filter.step(dt, w[None], f[None], gap)
+        self._refresh_aligned()
         return 1
 
-    def _reject_first(self, w, f) -> int:
-        # The first sample is not integrated; it is not an error either.
-        self.events["first_sample"] += 1
-        return 0
-
-    # ------------------------------------------------------------------ filter
-    def _accept(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float):
-        self.samples_used += 1
-        if self._buf is not None and not self.backtracked:
-            self._buf.append(dt, w, f, gap)
-            self._B = self._B @ so3_exp(w * dt)
-        self._step(self.pass_, dt, w, f, gap)
-        if (self._buf is not None and not self.backtracked
-                and self.pass_.t_int >= self.config.backtrack_time):
-            self._backtrack()
-        self._refresh_aligned()
-
-    def _disc(self, F: np.ndarray, dt: float, const: bool):
-        if not const:
-            return discretize(F, self.Qc, dt)
-        hit = self._disc_cache.get(dt)
-        if hit is None:
-            hit = discretize(F, self.Qc, dt)
-            if len(self._disc_cache) < 64:
-                self._disc_cache[dt] = hit
-        return hit
-
-    def _step(self, ps: _Pass, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0):
-        """One IMU sample: mechanization (eq. 1), covariance propagation, maybe an update."""
-        model = self.config.model
-        if gap > 0.0:
-            self._propagate_cov(ps, self._F(ps, None), gap, model == "constant")
-        ps.C = so3_exp(-self.w_ie * dt) @ ps.C @ so3_exp(w * dt)
-        fn = ps.C @ f
-        ps.v = ps.v + (fn + self.g_n) * dt
-        ps.t_int += dt
-        F = self._F(ps, fn)
-        self._propagate_cov(ps, F, dt, model == "constant")
-        H = measurement_matrix(model, ps.v)
-        if not ps.fine:
-            self._correct(ps, ps.v, H)
-            return
-        ps.v_sum += ps.v * dt
-        ps.t_acc += dt
-        if ps.t_acc >= self.config.fine_update_period - 0.5 * dt:
-            Ha = averaged_measurement_matrix(H, F, ps.t_acc)
-            self._correct(ps, ps.v_sum / ps.t_acc, Ha)
-            ps.v_sum = np.zeros(3)
-            ps.t_acc = 0.0
-
-    def _F(self, ps: _Pass, fn):
-        model = self.config.model
-        if model == "constant":
-            return self._Fconst
-        if fn is None:
-            fn = -self.g_n
-        return system_matrix(model, self.w_ie, self.g_n, fn, ps.v)
-
-    def _propagate_cov(self, ps: _Pass, F, dt, const):
-        """Propagate the noise covariance and the bias sensitivity through one interval."""
-        Phi, Qd = self._disc(F, dt, const)
-        ps.P = Phi @ ps.P @ Phi.T + Qd
-        ps.S = Phi @ ps.S + self.Gamma * dt
-
-    def _total_cov(self, ps: _Pass) -> np.ndarray:
-        """Noise covariance plus the bias-induced part (consider covariance), (6, 6)."""
-        return ps.P + ps.S @ self.bias_cov @ ps.S.T
-
-    def _correct(self, ps: _Pass, z: np.ndarray, H: np.ndarray):
-        Ptot = self._total_cov(ps)
-        x, ps.P, K, _ = joseph_update(ps.P, z, H, ps.R)
-        ps.S = ps.S - K @ (H @ ps.S)
-        nis = float(z @ np.linalg.solve(H @ Ptot @ H.T + ps.R, z))
-        ps.C, ps.v = apply_correction(self.config.model, ps.C, ps.v, x)
-        ps.updates += 1
-        a = 0.1 if ps.updates > 10 else 1.0 / ps.updates
-        ps.nis_mean += a * (nis / 3.0 - ps.nis_mean)
-
-    # ------------------------------------------------------------------ backtrack
-    def _backtrack(self):
-        """Carry the coarse estimate back to the first sample and rerun the fine pass."""
-        c = self.config
-        ps = self.pass_
-        T = ps.t_int
-        C0 = so3_exp(self.w_ie * T) @ ps.C @ self._B.T
-        dt, w, f, gap = self._buf.arrays()
-        r_std = self._sway_velocity_std(C0, dt, w, f, gap)
-        self.fine_R_std = r_std
-        fine = self._new_pass(C0, fine=True, std=c.fine_initial_std_deg, R=np.diag(r_std ** 2))
-        for k in range(len(dt)):
-            self._step(fine, dt[k], w[k], f[k], gap[k])
-        self.pass_ = fine
-        self.stage = "fine"
-        self.backtracked = True
-        self._buf = None
-
-    def _sway_velocity_std(self, C0, dt, w, f, gap) -> np.ndarray:
-        """Measured std (E, N, U) of the fine-pass measurement: interval-mean velocity noise.
-
-        Open-loop damped mechanization from ``C0`` over the buffer; a cubic per axis removes
-        the drift due to the remaining attitude error; what is left is the sway velocity
-        plus the VRW-driven wander. The variance of first differences of its interval means
-        (halved) estimates the white part seen by the fine update. Floored by the VRW term
-        and ``fine_min_velocity_noise``.
-        """
-        c = self.config
-        Wn = {}
-        C = C0.copy()
-        v = np.zeros(3)
-        vs = np.empty((len(dt), 3))
-        for k in range(len(dt)):
-            d = dt[k]
-            E = Wn.get(d)
-            if E is None:
-                E = Wn.setdefault(d, so3_exp(-self.w_ie * d))
-            C = E @ C @ so3_exp(w[k] * d)
-            v = v + (C @ f[k] + self.g_n) * d
-            vs[k] = v
-        t = np.cumsum(dt)
-        period = c.fine_update_period
-        idx = np.floor(t / period).astype(int)
-        n_int = idx[-1]
-        floor2 = c.specs.accel_vrw ** 2 * period / 3.0 + c.fine_min_velocity_noise ** 2
-        if n_int < 8:
-            return np.full(3, math.sqrt(floor2))
-        tn = (t - t.mean()) / (t.std() + 1e-12)
-        A = np.vander(tn, 4)
-        coef, *_ = np.linalg.lstsq(A, vs, rcond=None)
-        res = vs - A @ coef
-        keep = idx < n_int
-        counts = np.bincount(idx[keep], minlength=n_int)
-        means = np.stack([np.bincount(idx[keep], weights=res[keep, j], minlength=n_int)
-                          for j in range(3)], axis=1) / np.maximum(counts, 1)[:, None]
-        var = 0.5 * np.mean(np.diff(means, axis=0) ** 2, axis=0)
-        return np.sqrt(np.maximum(var, floor2))
-
     # ------------------------------------------------------------------ aligned flag
-    def _aligned_now(self) -> bool:
-        """Criteria: fine pass running (or backtrack off), no fault, not disturbed, and the
-        published std of every observable axis below max(ratio x limit, absolute minimum)."""
+    def aligned_now(self) -> bool:
+        """Criteria: no fault, not disturbed, the fine pass running (unless backtrack is off),
+        and the published std of every observable axis at most
+        ``max(aligned_std_ratio x limit std, aligned_min_*_std_deg)``."""
         c = self.config
         if self.units_suspect or self.disturbed:
             return False
-        if c.backtrack and not self.backtracked:
+        if c.backtrack and not self.filter.backtracked:
             return False
         std = np.sqrt(np.diag(self.covariance))
         lim = self.limit_std
-        thr_level = max(c.aligned_std_ratio * lim[0], c.aligned_min_level_std_deg * DEG)
-        ok = std[0] <= thr_level and std[1] <= max(c.aligned_std_ratio * lim[1],
-                                                   c.aligned_min_level_std_deg * DEG)
+        lvl = c.aligned_min_level_std_deg * DEG
+        ok = (std[0] <= max(c.aligned_std_ratio * lim[0], lvl)
+              and std[1] <= max(c.aligned_std_ratio * lim[1], lvl))
         if self.heading_observable:
             ok = ok and std[2] <= max(c.aligned_std_ratio * lim[2],
                                       c.aligned_min_heading_std_deg * DEG)
@@ -551,15 +607,15 @@ class Aligner:
     def _refresh_aligned(self):
         if self.units_suspect or self.disturbed:
             self._aligned = False
-            return
-        if not self._aligned and self._aligned_now():
+        elif not self._aligned and self.aligned_now():
             self._aligned = True
             if self.time_to_aligned is None:
                 self.time_to_aligned = self.elapsed
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict:
-        """A JSON-ready snapshot of the result (used by the node diagnostics and the replay)."""
+        """A JSON-ready snapshot of the result (node diagnostics, replay summary)."""
+        r = self.filter.fine_R_std
         return {
             "status": self.status,
             "stage": self.stage,
@@ -575,31 +631,32 @@ class Aligner:
             "heading_deg": self.heading_deg,
             "std_enu_deg": self.std_enu_deg.tolist(),
             "limit_std_enu_deg": [float(x) for x in self.limit_std_deg],
-            "fine_velocity_noise_mps": None if self.fine_R_std is None else self.fine_R_std.tolist(),
+            "fine_velocity_noise_mps": None if r is None else r[0].tolist(),
             "nis": self.nis,
         }
 
 
 class _SampleBuffer:
-    """Growable store of accepted samples [dt, w(3), f(3), gap] for the backtrack."""
+    """Growable store of accepted samples for the backtrack: dt, gap (M,), w, f (M, N, 3)."""
 
-    def __init__(self):
-        self._a = np.empty((4096, 8))
+    def __init__(self, n: int):
+        self._t = np.empty((1024, 2))
+        self._wf = np.empty((1024, n, 6))
         self._n = 0
 
     def append(self, dt, w, f, gap):
-        if self._n == len(self._a):
-            self._a = np.concatenate([self._a, np.empty_like(self._a)])
-        row = self._a[self._n]
-        row[0] = dt
-        row[1:4] = w
-        row[4:7] = f
-        row[7] = gap
+        if self._n == len(self._t):
+            self._t = np.concatenate([self._t, np.empty_like(self._t)])
+            self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
+        self._t[self._n] = (dt, gap)
+        self._wf[self._n, :, :3] = w
+        self._wf[self._n, :, 3:] = f
         self._n += 1
 
     def arrays(self):
-        a = self._a[: self._n]
-        return a[:, 0], a[:, 1:4], a[:, 4:7], a[:, 7]
+        t = self._t[: self._n]
+        wf = self._wf[: self._n]
+        return t[:, 0], wf[..., :3], wf[..., 3:], t[:, 1]
 
 
 class _UnitsMonitor:

@@ -1,36 +1,42 @@
 """Kalman-filter numerics shared by every model: discretisation and a Joseph-form update.
 
-Kept apart from the models so the discretisation lives in one place (STYLE.md).
+Kept apart from the models so the discretisation lives in one place (STYLE.md). Every
+function works on a single filter or on a stack of filters (leading dimension N).
 """
 from __future__ import annotations
 
 import numpy as np
 
 
+def _T(a: np.ndarray) -> np.ndarray:
+    return np.swapaxes(a, -1, -2)
+
+
 def discretize(F: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Transition matrix and discrete process noise for ``x' = F x + w``, ``E[w w^T] = Qc delta``.
 
-    Third-order series in ``F dt``. For the alignment models ``|F dt|`` is below 1e-3 for
-    any sample interval up to a second (Earth rate 7.3e-5 rad/s, gravity enters only
-    through products with it), so the truncation error is below 1e-12.
+    Third-order series in ``F dt``. For the alignment models ``|F dt|`` stays below 1e-3 for
+    any interval up to several seconds (Earth rate 7.3e-5 rad/s; gravity enters only through
+    products with it), so the truncation error is below 1e-12.
 
     Parameters
     ----------
-    F : ndarray, shape (n, n) — continuous system matrix.
+    F : ndarray, shape (..., n, n) — continuous system matrix.
     Qc : ndarray, shape (n, n) — continuous process noise spectral density.
     dt : float, s — interval.
 
     Returns
     -------
-    Phi : ndarray, shape (n, n) ; Qd : ndarray, shape (n, n)
+    Phi : ndarray, shape (..., n, n) ; Qd : ndarray, shape (..., n, n)
     """
     Fdt = F * dt
     F2 = Fdt @ Fdt
-    Phi = np.eye(F.shape[0]) + Fdt + F2 / 2.0 + F2 @ Fdt / 6.0
+    Phi = np.eye(F.shape[-1]) + Fdt + F2 / 2.0 + F2 @ Fdt / 6.0
     FQ = F @ Qc
-    Qd = Qc * dt + (FQ + FQ.T) * (dt * dt / 2.0) \
-        + (F @ FQ + 2.0 * FQ @ F.T + (F @ FQ).T) * (dt ** 3 / 6.0)
-    return Phi, 0.5 * (Qd + Qd.T)
+    FFQ = F @ FQ
+    Qd = Qc * dt + (FQ + _T(FQ)) * (dt * dt / 2.0) \
+        + (FFQ + 2.0 * FQ @ _T(F) + _T(FFQ)) * (dt ** 3 / 6.0)
+    return Phi, 0.5 * (Qd + _T(Qd))
 
 
 def joseph_update(P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray):
@@ -38,23 +44,29 @@ def joseph_update(P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray):
 
     Parameters
     ----------
-    P : ndarray, shape (n, n) — prior covariance.
-    nu : ndarray, shape (m,) — innovation ``z - H x_prior`` (``x_prior`` = 0 after feedback).
-    H : ndarray, shape (m, n) ; R : ndarray, shape (m, m).
+    P : ndarray, shape (..., n, n) — prior covariance.
+    nu : ndarray, shape (..., m) — innovation ``z - H x_prior`` (``x_prior`` = 0 after feedback).
+    H : ndarray, shape (..., m, n) ; R : ndarray, shape (..., m, m).
 
     Returns
     -------
-    x : ndarray (n,) — posterior error-state estimate.
-    P : ndarray (n, n) — posterior covariance (symmetrised).
-    K : ndarray (n, m) — gain.
-    nis : float — normalised innovation squared ``nu^T S^-1 nu`` (chi-square, m dof, when the
-        model fits the data; large values mean motion or a bad sensor).
+    x : ndarray (..., n) — posterior error-state estimate.
+    P : ndarray (..., n, n) — posterior covariance (symmetrised).
+    K : ndarray (..., n, m) — gain.
     """
-    PHt = P @ H.T
+    PHt = P @ _T(H)
     S = H @ PHt + R
-    K = np.linalg.solve(S, PHt.T).T
-    IKH = np.eye(P.shape[0]) - K @ H
-    P = IKH @ P @ IKH.T + K @ R @ K.T
-    x = K @ nu
-    nis = float(nu @ np.linalg.solve(S, nu))
-    return x, 0.5 * (P + P.T), K, nis
+    K = _T(np.linalg.solve(S, _T(PHt)))
+    IKH = np.eye(P.shape[-1]) - K @ H
+    P = IKH @ P @ _T(IKH) + K @ R @ _T(K)
+    x = (K @ nu[..., None])[..., 0]
+    return x, 0.5 * (P + _T(P)), K
+
+
+def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Normalised innovation squared ``nu^T S^-1 nu``, shape (...,).
+
+    Chi-square with m degrees of freedom when the model fits the data; large values mean
+    motion, a bad sensor or a wrong noise setting.
+    """
+    return np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])

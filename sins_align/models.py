@@ -30,29 +30,39 @@ def system_matrix(model: str, w_ie_n: np.ndarray, g_n: np.ndarray,
     model : 'constant' (paper eq. 30), 'conventional' (eq. 18) or 'se3' (eq. 25).
     w_ie_n : ndarray (3,), rad/s — Earth rate in ENU.
     g_n : ndarray (3,), m/s^2 — gravity vector in ENU ([0, 0, -g]).
-    f_n : ndarray (3,), m/s^2 — ``C_est f^b``, needed by 'conventional'.
-    v_est : ndarray (3,), m/s — velocity estimate, needed by 'se3'.
+    f_n : ndarray (..., 3), m/s^2 — ``C_est f^b``, needed by 'conventional'.
+    v_est : ndarray (..., 3), m/s — velocity estimate, needed by 'se3'.
+
+    Returns
+    -------
+    F : ndarray (6, 6), or (..., 6, 6) for stacked f_n / v_est.
     """
-    F = np.zeros((6, 6))
-    F[:3, :3] = -skew(w_ie_n)
-    if model == "constant":
-        F[3:, :3] = -skew(g_n)
-    elif model == "conventional":
-        F[3:, :3] = skew(f_n)
+    check_model(model)
+    lead = ()
+    if model == "conventional":
+        lead = np.shape(f_n)[:-1]
     elif model == "se3":
-        F[3:, :3] = skew(g_n) - skew(v_est) @ skew(w_ie_n)
+        lead = np.shape(v_est)[:-1]
+    F = np.zeros(lead + (6, 6))
+    F[..., :3, :3] = -skew(w_ie_n)
+    if model == "constant":
+        F[..., 3:, :3] = -skew(g_n)
+    elif model == "conventional":
+        F[..., 3:, :3] = skew(f_n)
     else:
-        check_model(model)
+        F[..., 3:, :3] = skew(g_n) - skew(v_est) @ skew(w_ie_n)
     return F
 
 
 def measurement_matrix(model: str, v_est: np.ndarray | None = None) -> np.ndarray:
-    """H, shape (3, 6), for the zero-velocity measurement ``z = v_est`` (true velocity zero)."""
-    H = np.zeros((3, 6))
+    """H, shape (3, 6) (or (..., 3, 6) for 'se3' with stacked v_est), for the zero-velocity
+    measurement ``z = v_est`` (the true velocity is zero)."""
     if model == "se3":
-        H[:, :3] = skew(v_est)
-        H[:, 3:] = -np.eye(3)
+        H = np.zeros(np.shape(v_est)[:-1] + (3, 6))
+        H[..., :3] = skew(v_est)
+        H[..., 3:] = -np.eye(3)
     else:
+        H = np.zeros((3, 6))
         H[:, 3:] = np.eye(3)
     return H
 
@@ -64,8 +74,8 @@ def averaged_measurement_matrix(H: np.ndarray, F: np.ndarray, period: float) -> 
     end value minus ``F21 phi period / 2``; the attitude error changes negligibly
     (Earth-rate coupling only).
     """
-    Ha = H.copy()
-    Ha[:, :3] = H[:, :3] - H[:, 3:] @ F[3:, :3] * (0.5 * period)
+    Ha = np.array(np.broadcast_to(H, np.broadcast_shapes(H.shape, F.shape[:-2] + (3, 6))))
+    Ha[..., :3] = H[..., :3] - H[..., 3:] @ F[..., 3:, :3] * (0.5 * period)
     return Ha
 
 
@@ -84,12 +94,13 @@ def bias_input_matrix(model: str) -> np.ndarray:
 def apply_correction(model: str, C_est: np.ndarray, v_est: np.ndarray, x: np.ndarray):
     """Feed the estimated error back into the state (exact exponential on SO(3)).
 
-    Returns the corrected ``(C_est, v_est)``; the error state is zero afterwards.
+    Shapes: C_est (..., 3, 3), v_est (..., 3), x (..., 6). Returns the corrected
+    ``(C_est, v_est)``; the error state is zero afterwards.
     """
-    E = so3_exp(x[:3])
+    E = so3_exp(x[..., :3])
     C_new = E @ C_est
     if model == "se3":
-        v_new = E @ v_est + x[3:]
+        v_new = (E @ v_est[..., None])[..., 0] + x[..., 3:]
     else:
-        v_new = v_est - x[3:]
+        v_new = v_est - x[..., 3:]
     return C_new, v_new
