@@ -1,0 +1,141 @@
+"""What align_node publishes, as plain values: one code path for the node and the replay.
+
+The node fills rclpy messages from these values and the replay tool fills rosbags
+messages from the same values, so a live run and a replay publish identical numbers.
+No ROS imports here.
+
+Conventions (README "Frames")
+-----------------------------
+- ``orientation``: quaternion [x, y, z, w] of C_b^n, the IMU frame (the input
+  ``header.frame_id``) in ENU, as imu_filter_madgwick publishes it.
+- ``orientation_covariance``: 3x3 row-major, rad^2, covariance of the attitude error
+  rotation vector phi (paper eq. 15) about the ENU axes x = East, y = North, z = Up.
+  When heading is unobservable (consumer gyros, near the poles) the z variance is pi^2
+  and its cross terms are zero: the yaw is then arbitrary, roll and pitch still hold.
+- ``euler_deg``: REP-103 roll, pitch, yaw in degrees (yaw 0 = IMU x axis East, CCW).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .estimator import Aligner
+
+#: diagnostic_msgs/DiagnosticStatus levels
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+STATE_TEXT = {
+    "waiting": "waiting for IMU data",
+    "aligning": "aligning",
+    "aligned": "aligned",
+    "disturbed": "disturbed: the platform is not quasi-static",
+    "fault": "fault: gyro rates do not match the accelerometer (deg/s sent as rad/s?)",
+}
+
+
+@dataclass(frozen=True)
+class ImuOutput:
+    """Orientation fields added to the input sample."""
+
+    orientation_xyzw: tuple[float, float, float, float]
+    orientation_covariance: tuple[float, ...]   # 9 values, row-major
+
+
+def imu_output(al: Aligner) -> ImuOutput:
+    """Orientation and its covariance for the output ``sensor_msgs/Imu``."""
+    q = al.quaternion
+    cov = al.covariance
+    return ImuOutput(tuple(float(x) for x in q), tuple(float(x) for x in cov.reshape(-1)))
+
+
+def euler_deg(al: Aligner) -> tuple[float, float, float]:
+    """REP-103 roll, pitch, yaw of the IMU frame in ENU, deg."""
+    r = al.rpy_deg
+    return float(r[0]), float(r[1]), float(r[2])
+
+
+def diagnostic_status(al: Aligner, input_rate_hz: float | None = None
+                      ) -> tuple[int, str, list[tuple[str, str]]]:
+    """Level, message and key/value pairs of the node's DiagnosticStatus.
+
+    Returns
+    -------
+    level : int — OK (aligned or aligning), WARN (waiting, disturbed, samples rejected
+        recently), ERROR (fault).
+    message : str
+    values : list of (key, value) strings
+    """
+    st = al.status
+    level = {"waiting": WARN, "aligning": OK, "aligned": OK,
+             "disturbed": WARN, "fault": ERROR}[st]
+    std = al.std_enu_deg
+    lim = al.limit_std_deg
+    msg = STATE_TEXT[st]
+    if not al.heading_observable:
+        msg += " (level only: heading unobservable with this gyro grade / latitude)"
+    values = [
+        ("state", st),
+        ("stage", al.stage),
+        ("aligned", str(al.aligned).lower()),
+        ("heading_observable", str(al.heading_observable).lower()),
+        ("elapsed_s", f"{al.elapsed:.3f}"),
+        ("std_east_deg", f"{std[0]:.6f}"),
+        ("std_north_deg", f"{std[1]:.6f}"),
+        ("std_up_deg", f"{std[2]:.6f}"),
+        ("limit_east_deg", f"{lim[0]:.6f}"),
+        ("limit_north_deg", f"{lim[1]:.6f}"),
+        ("limit_up_deg", f"{lim[2]:.6f}"),
+        ("samples_used", str(al.samples_used)),
+        ("samples_rejected", str(sum(al.rejected.values()))),
+        ("last_reject_reason", al.last_reject or ""),
+        ("nis", f"{al.nis:.3f}"),
+        ("input_rate_hz", "" if input_rate_hz is None else f"{input_rate_hz:.2f}"),
+    ]
+    values += [(f"rejected_{k}", str(v)) for k, v in sorted(al.rejected.items())]
+    values += [(f"event_{k}", str(v)) for k, v in sorted(al.events.items())]
+    if al.time_to_aligned is not None:
+        values.append(("time_to_aligned_s", f"{al.time_to_aligned:.3f}"))
+    return level, msg, values
+
+
+def covariance_is_valid(cov9) -> bool:
+    """True if a 9-value covariance is finite, symmetric and positive semi-definite."""
+    c = np.asarray(cov9, dtype=float).reshape(3, 3)
+    if not np.isfinite(c).all() or not np.allclose(c, c.T, atol=1e-15):
+        return False
+    return bool(np.linalg.eigvalsh(c).min() >= -1e-15)
+
+
+class StampClock:
+    """Turns (sec, nanosec) header stamps into float seconds without losing precision.
+
+    Seconds are counted from the integer second of the first stamp seen, so float64 keeps
+    nanosecond resolution even for epoch stamps (1.7e9 s). The node and the replay both
+    use it, so both hand the estimator the same numbers.
+    """
+
+    def __init__(self):
+        self.epoch: int | None = None
+
+    def __call__(self, sec: int, nanosec: int) -> float:
+        if self.epoch is None:
+            self.epoch = int(sec)
+        return float(int(sec) - self.epoch) + int(nanosec) * 1e-9
+
+    def to_stamp(self, t: float) -> tuple[int, int]:
+        """Inverse of ``__call__`` (rounded to the nanosecond)."""
+        ns = int(round(t * 1e9)) + (self.epoch or 0) * 1_000_000_000
+        return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+def imu_sample(msg, clock: StampClock) -> tuple[float, np.ndarray, np.ndarray]:
+    """(stamp s, gyro rad/s (3,), specific force m/s^2 (3,)) from a sensor_msgs/Imu.
+
+    Works for rclpy messages and rosbags message objects alike (same field names).
+    """
+    st = msg.header.stamp
+    w = msg.angular_velocity
+    a = msg.linear_acceleration
+    return (clock(st.sec, st.nanosec), np.array([w.x, w.y, w.z], dtype=float),
+            np.array([a.x, a.y, a.z], dtype=float))

@@ -1,0 +1,179 @@
+"""Parameters shared by align_node and the replay tool: names, units, defaults, ranges.
+
+One table (:data:`PARAMS`) defines every alignment parameter. The node declares ROS
+parameters from it (with descriptors); the replay tool reads the node's YAML file through
+:func:`load_params_yaml`; both turn the values into an :class:`AlignConfig` with
+:func:`config_from_params`. No ROS imports here.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .estimator import AlignConfig
+from .models import MODELS
+from .specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
+
+NODE_NAME = "sins_align"
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: ROS name, default (its type is the parameter type), text, range."""
+
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] | None = None
+    read_only: bool = True
+
+
+PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("latitude", math.nan, "Geodetic latitude of the IMU, deg (required).", -90.0, 90.0),
+    ParamSpec("height", 0.0, "Height above the WGS-84 ellipsoid, m.", -10000.0, 100000.0),
+    ParamSpec("model", "constant", "Error model: constant (paper Model 3), conventional "
+              "(Model 1) or se3 (Model 2).", choices=MODELS),
+    ParamSpec("initial_rpy", [0.0, 0.0, 0.0], "Initial REP-103 roll, pitch, yaw of the IMU frame "
+              "in ENU, deg. Any value converges; it only shortens the transient."),
+    ParamSpec("grade", "navigation", "Sensor grade preset for the specs below: navigation, "
+              "tactical or consumer.", choices=tuple(GRADES)),
+    ParamSpec("gyro_bias", -1.0, "Gyro bias 1-sigma, deg/h (-1 = from grade).", -1.0, 1e6),
+    ParamSpec("gyro_arw", -1.0, "Gyro angle random walk, deg/sqrt(h) (-1 = from grade).", -1.0, 1e6),
+    ParamSpec("accel_bias", -1.0, "Accelerometer bias 1-sigma, micro-g (-1 = from grade).", -1.0, 1e6),
+    ParamSpec("accel_vrw", -1.0, "Accelerometer white noise, micro-g/sqrt(Hz) (-1 = from grade).",
+              -1.0, 1e6),
+    ParamSpec("velocity_noise", 0.01, "Zero-velocity measurement noise of the coarse pass, m/s.",
+              1e-6, 10.0),
+    ParamSpec("backtrack", True, "Re-run the buffered data in the fine pass once a first "
+              "estimate exists (False = the paper's one-pass filter)."),
+    ParamSpec("backtrack_time", 60.0, "Data time after which the fine pass starts, s.", 5.0, 3600.0),
+    ParamSpec("fine_update_period", 1.0, "Shortest fine-pass update period, s (lengthened "
+              "automatically for slow sway).", 0.01, 60.0),
+    ParamSpec("rate", 0.0, "Nominal IMU rate, Hz (0 = estimate from the stamps).", 0.0, 100000.0),
+    ParamSpec("max_gap", 5.0, "Stamp gaps above this are time jumps: sample rejected, time "
+              "re-anchored, s.", 0.001, 3600.0, read_only=False),
+    ParamSpec("max_angular_rate", 1.0, "Reject samples whose |angular rate| exceeds this, rad/s.",
+              1e-3, 100.0, read_only=False),
+    ParamSpec("specific_force_tolerance", 0.5, "Reject samples with ||f| - g| above this "
+              "fraction of g.", 0.01, 5.0, read_only=False),
+    ParamSpec("units_check_window", 20.0, "Window of the deg/s-versus-rad/s check, s "
+              "(0 = off).", 0.0, 3600.0),
+    ParamSpec("aligned_std_ratio", 1.5, "Aligned when each observable axis std <= this x its "
+              "limit accuracy ...", 1.0, 100.0, read_only=False),
+    ParamSpec("aligned_min_level_std", 0.01, "... or <= this level std, deg.", 0.0, 90.0,
+              read_only=False),
+    ParamSpec("aligned_min_heading_std", 0.1, "... or <= this heading std, deg.", 0.0, 180.0,
+              read_only=False),
+    ParamSpec("heading_max_limit_std", 10.0, "Heading counts as observable when its limit "
+              "accuracy is below this, deg (else level-only).", 0.0, 180.0),
+    ParamSpec("disturbance_nis", 3.0, "Mean normalised innovation per axis above which the "
+              "platform counts as moving (disturbed).", 0.1, 1e6, read_only=False),
+)
+
+PARAMS_BY_NAME = {p.name: p for p in PARAMS}
+
+_TO_CONFIG = {
+    "height": "height_m", "model": "model", "velocity_noise": "coarse_velocity_noise",
+    "backtrack": "backtrack", "backtrack_time": "backtrack_time",
+    "fine_update_period": "fine_update_period", "max_gap": "max_gap",
+    "max_angular_rate": "max_angular_rate", "specific_force_tolerance": "specific_force_tolerance",
+    "units_check_window": "units_check_window", "aligned_std_ratio": "aligned_std_ratio",
+    "aligned_min_level_std": "aligned_min_level_std_deg",
+    "aligned_min_heading_std": "aligned_min_heading_std_deg",
+    "heading_max_limit_std": "heading_max_limit_std_deg", "disturbance_nis": "disturbance_nis",
+}
+_SPEC_UNITS = {"gyro_bias": DPH, "gyro_arw": DPSH, "accel_bias": UG, "accel_vrw": UG_PSHZ}
+
+
+def check_param(name: str, value: Any) -> str | None:
+    """Return a one-line reason why ``value`` is not acceptable for ``name``, or None."""
+    spec = PARAMS_BY_NAME.get(name)
+    if spec is None:
+        return f"unknown parameter '{name}'"
+    d = spec.default
+    if isinstance(d, bool):
+        return None if isinstance(value, bool) else f"{name} must be true or false"
+    if isinstance(d, str):
+        if not isinstance(value, str):
+            return f"{name} must be a string"
+        if spec.choices and value not in spec.choices:
+            return f"{name} must be one of {', '.join(spec.choices)}, got '{value}'"
+        return None
+    if isinstance(d, list):
+        try:
+            vals = [float(x) for x in value]
+        except (TypeError, ValueError):
+            return f"{name} must be a list of numbers"
+        if len(vals) not in (0, 3) or not all(math.isfinite(x) for x in vals):
+            return f"{name} must be 3 finite angles in deg (or empty), got {list(value)}"
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f"{name} must be a number"
+    v = float(value)
+    if not math.isfinite(v):
+        return f"{name} is required" if name == "latitude" else f"{name} must be finite"
+    if (spec.low is not None and v < spec.low) or (spec.high is not None and v > spec.high):
+        return f"{name} must be within [{spec.low:g}, {spec.high:g}], got {v:g}"
+    return None
+
+
+def defaults() -> dict[str, Any]:
+    """Default value of every parameter (latitude is NaN: required)."""
+    return {p.name: (list(p.default) if isinstance(p.default, list) else p.default)
+            for p in PARAMS}
+
+
+def config_from_params(values: dict[str, Any]) -> AlignConfig:
+    """Build an :class:`AlignConfig` from parameter values (missing ones take defaults).
+
+    Raises
+    ------
+    ValueError
+        With a one-line reason for the first bad value (unknown names included).
+    """
+    merged = defaults()
+    merged.update(values)
+    for name, value in merged.items():
+        reason = check_param(name, value)
+        if reason:
+            raise ValueError(reason)
+    specs = grade_specs(merged["grade"])
+    over = {k: float(merged[k]) * unit for k, unit in _SPEC_UNITS.items() if merged[k] >= 0.0}
+    if over:
+        specs = specs.with_(**over)
+    kw = {cfg: merged[name] for name, cfg in _TO_CONFIG.items()}
+    rpy = [float(x) for x in merged["initial_rpy"]]
+    rate = float(merged["rate"])
+    return AlignConfig(latitude_deg=float(merged["latitude"]), specs=specs,
+                       initial_rpy_deg=tuple(rpy) if rpy else None,
+                       rate_hz=rate if rate > 0 else None, **kw)
+
+
+def load_params_yaml(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
+    """Read the ``ros__parameters`` of ``node_name`` (or ``/**``) from a ROS 2 params file.
+
+    Raises
+    ------
+    ValueError
+        If the file cannot be parsed or holds no parameters for the node.
+    """
+    import yaml
+
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise ValueError(f"cannot read parameters file {path}: {e}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: not a ROS 2 parameters file (expected a mapping)")
+    out: dict[str, Any] = {}
+    for key in ("/**", node_name, "/" + node_name):
+        block = doc.get(key)
+        if isinstance(block, dict) and isinstance(block.get("ros__parameters"), dict):
+            out.update(block["ros__parameters"])
+    if not out:
+        raise ValueError(f"{path}: no '{node_name}: ros__parameters:' section")
+    return out
