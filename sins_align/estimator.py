@@ -84,6 +84,9 @@ class AlignConfig:
     aligned_min_level_std_deg, aligned_min_heading_std_deg : ... or below these absolute values.
     heading_max_limit_std_deg : heading counts as observable when its limit std is below this.
     disturbance_nis : mean NIS per dof above which the platform counts as disturbed (moving).
+    reinflate_nis : mean NIS per dof above which the covariance is re-inflated to its initial
+        value (the error is far larger than the filter believes: a large-angle transient).
+    reinflate_holdoff : s between two re-inflations of the same run.
     """
 
     latitude_deg: float
@@ -105,12 +108,14 @@ class AlignConfig:
     max_gap: float = 5.0
     max_angular_rate: float = 1.0
     specific_force_tolerance: float = 0.5
-    units_check_window: float = 20.0
+    units_check_window: float = 30.0
     aligned_std_ratio: float = 1.5
     aligned_min_level_std_deg: float = 0.01
     aligned_min_heading_std_deg: float = 0.1
     heading_max_limit_std_deg: float = 10.0
     disturbance_nis: float = 3.0
+    reinflate_nis: float = 100.0
+    reinflate_holdoff: float = 5.0
 
     def __post_init__(self):
         if isinstance(self.specs, str):
@@ -128,7 +133,8 @@ class AlignConfig:
         for name in ("coarse_velocity_noise", "initial_velocity_std", "backtrack_time",
                      "fine_update_period", "fine_min_velocity_noise", "min_dt_ratio",
                      "max_gap", "max_angular_rate", "specific_force_tolerance",
-                     "aligned_std_ratio", "disturbance_nis", "gap_ratio"):
+                     "aligned_std_ratio", "disturbance_nis", "gap_ratio", "reinflate_nis",
+                     "reinflate_holdoff"):
             v = getattr(self, name)
             _check(math.isfinite(v) and v > 0.0, f"{name} must be finite and > 0, got {v!r}")
         for name in ("coarse_initial_std_deg", "fine_initial_std_deg"):
@@ -186,8 +192,10 @@ class AlignmentFilter:
         self.backtracked = False
         self.fine_R_std: np.ndarray | None = None
         self.fine_period = c.fine_update_period
+        self.steady_std: np.ndarray | None = None
         self._buf = _SampleBuffer(self.n) if c.backtrack else None
         self._B = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
+        self.reinflations = np.zeros(self.n, dtype=int)
 
     # ------------------------------------------------------------------ state
     def _start_pass(self, C0, fine: bool, std, R):
@@ -197,6 +205,7 @@ class AlignmentFilter:
         P[0, 3:, 3:] = np.eye(3) * self.config.initial_velocity_std ** 2
         self.C = np.array(C0, dtype=float)
         self.v = np.zeros((self.n, 3))
+        self.P0 = P
         self.P = P                     # noise covariance, (1|N, 6, 6): what the gain uses
         self.S = np.zeros((1, 6, 6))   # sensitivity of the error to ENU biases [accel; gyro]
         self.R = R                     # measurement noise, (1|N, 3, 3)
@@ -206,6 +215,7 @@ class AlignmentFilter:
         self.t_int = 0.0               # integrated time since this pass started
         self.nis_mean = np.zeros(self.n)
         self.updates = 0
+        self.last_reinflate = np.zeros(self.n)
 
     def total_covariance(self) -> np.ndarray:
         """Noise covariance plus the bias-induced part ``S Sigma_b S^T``, (1|N, 6, 6)."""
@@ -294,7 +304,27 @@ class AlignmentFilter:
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
         self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
+        c = self.config
+        bad = (self.nis_mean > c.reinflate_nis) & (
+            self.t_int - self.last_reinflate >= c.reinflate_holdoff)
+        if bad.any():
+            self._reinflate(bad)
 
+    def _reinflate(self, mask: np.ndarray):
+        """Reset the covariance of the runs in ``mask`` to the pass's initial value.
+
+        The innovations say the error is far larger than the covariance claims (a
+        large-angle transient stuck near a 180 deg flip): restarting the gain schedule
+        lets the filter move again instead of crawling with a collapsed covariance.
+        """
+        P = np.broadcast_to(self.P, (self.n, 6, 6)).copy()
+        S = np.broadcast_to(self.S, (self.n, 6, 6)).copy()
+        P[mask] = self.P0[0]
+        S[mask] = 0.0
+        self.P, self.S = P, S
+        self.nis_mean = np.where(mask, 0.0, self.nis_mean)
+        self.last_reinflate = np.where(mask, self.t_int, self.last_reinflate)
+        self.reinflations += mask
     # ------------------------------------------------------------------ backtrack
     def backtrack(self):
         """Carry the estimate back to the first sample and rerun the buffer in the fine pass.
@@ -311,11 +341,36 @@ class AlignmentFilter:
         R = np.zeros((self.n, 3, 3))
         R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
         self._start_pass(C0, fine=True, std=c.fine_initial_std_deg, R=R)
+        self.steady_std = self._steady_state_std()
         self.stage = "fine"
         self.backtracked = True
         self._buf = None
         for k in range(len(dt)):
             self._advance(float(dt[k]), w[k], f[k], float(gap[k]))
+
+    def _steady_state_std(self, horizon: float = 1800.0) -> np.ndarray:
+        """Attitude std (N, 3), rad, the fine pass tends to on a static base: the covariance
+        recursion alone (no data), iterated over ``horizon`` seconds of fine updates.
+
+        For navigation and tactical grades this is the limit accuracy; for MEMS gyros the
+        gyro bias adds a tracking lag to the level axes that no filter without bias states
+        can remove, so the aligned flag compares against whichever is larger.
+        """
+        T = self.fine_period
+        F = self._Fconst if self.config.model == "constant" else system_matrix(
+            self.config.model, self.w_ie, self.g_n, -self.g_n, np.zeros(3))
+        Phi, Qd = discretize(F, self.Qc, T)
+        H = averaged_measurement_matrix(measurement_matrix(self.config.model, np.zeros(3)), F, T)
+        P, S = self.P.copy(), self.S.copy()
+        Gd = self.Gamma * T
+        for _ in range(int(horizon / T)):
+            P = Phi @ P @ Phi.T + Qd
+            S = Phi @ S + Gd
+            _, P, K = joseph_update(P, np.zeros((P.shape[0], 3)), H, self.R)
+            S = S - K @ (H @ S)
+        tot = P + S @ self.bias_cov @ np.swapaxes(S, -1, -2)
+        return np.broadcast_to(np.sqrt(np.diagonal(tot[:, :3, :3], axis1=1, axis2=2)),
+                               (self.n, 3))
 
     def _sway_velocity_std(self, C0, dt, w, f):
         """Measure the sway velocity; pick the fine update period and its noise.
@@ -411,6 +466,7 @@ class Aligner:
         self.samples_used = 0
         self.t_first: float | None = None
         self.t_last: float | None = None
+        self._t_prev_raw: float | None = None
         self._dt_seen: list[float] = []
         self.nominal_dt = 1.0 / c.rate_hz if c.rate_hz else None
         self._units = _UnitsMonitor(self) if c.units_check_window > 0 else None
@@ -543,7 +599,7 @@ class Aligner:
             return self._reject("nonfinite")
         if self.t_last is None:
             # the first sample anchors time; it has no interval to integrate over
-            self.t_first = self.t_last = t
+            self.t_first = self.t_last = self._t_prev_raw = t
             self.events["first_sample"] += 1
             return 0
         dt = t - self.t_last
@@ -555,8 +611,11 @@ class Aligner:
             self.t_last = t
             self.events["time_jump"] += 1
             return self._reject("time_jump")
-        if self.nominal_dt is None:
-            self._dt_seen.append(dt)
+        raw_dt = t - self._t_prev_raw
+        self._t_prev_raw = t
+        if self.nominal_dt is None and raw_dt > 0.0:
+            # message interval, measured between consecutive samples whatever their fate
+            self._dt_seen.append(raw_dt)
             if len(self._dt_seen) >= 20:
                 self.nominal_dt = float(np.median(self._dt_seen))
         nom = self.nominal_dt
@@ -567,13 +626,13 @@ class Aligner:
             return self._reject("gravity_removed")
         if abs(fn - self.g) > c.specific_force_tolerance * self.g:
             return self._reject("specific_force_out_of_range")
-        if math.sqrt(float(w @ w)) > c.max_angular_rate:
-            return self._reject("rate_too_high")
         if self._units is not None:
-            self._units.add(dt, w, f)
+            self._units.add(raw_dt, w, f)
             if self.units_suspect:
                 self.t_last = t
                 return self._reject("rates_look_like_deg_per_s")
+        if math.sqrt(float(w @ w)) > c.max_angular_rate:
+            return self._reject("rate_too_high")
         gap = 0.0
         if nom is not None and dt > c.gap_ratio * nom:
             gap, dt = dt - nom, nom
@@ -588,7 +647,8 @@ class Aligner:
     def aligned_now(self) -> bool:
         """Criteria: no fault, not disturbed, the fine pass running (unless backtrack is off),
         and the published std of every observable axis at most
-        ``max(aligned_std_ratio x limit std, aligned_min_*_std_deg)``."""
+        ``max(aligned_std_ratio x reachable std, aligned_min_*_std_deg)``, where the reachable
+        std is the larger of the limit accuracy and the fine pass's steady-state std."""
         c = self.config
         if self.units_suspect or self.disturbed:
             return False
@@ -596,6 +656,8 @@ class Aligner:
             return False
         std = np.sqrt(np.diag(self.covariance))
         lim = self.limit_std
+        if self.filter.steady_std is not None:
+            lim = np.maximum(lim, self.filter.steady_std[0])
         lvl = c.aligned_min_level_std_deg * DEG
         ok = (std[0] <= max(c.aligned_std_ratio * lim[0], lvl)
               and std[1] <= max(c.aligned_std_ratio * lim[1], lvl))
@@ -683,6 +745,8 @@ class _UnitsMonitor:
         self.f_tail = np.zeros(3)
 
     def add(self, dt, w, f):
+        if not 0.0 < dt <= self.window:
+            return
         self.B = self.B @ so3_exp(w * dt)
         self.T += dt
         if self.T <= 1.0:
@@ -690,6 +754,9 @@ class _UnitsMonitor:
         if self.T > self.window - 1.0:
             self.f_tail += f * dt
         if self.T >= self.window:
+            if not (np.linalg.norm(self.f_head) > 0 and np.linalg.norm(self.f_tail) > 0):
+                self._start()
+                return
             a = self.f_head / np.linalg.norm(self.f_head)
             b = self.f_tail / np.linalg.norm(self.f_tail)
             pred = self.B.T @ a

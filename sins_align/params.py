@@ -60,7 +60,7 @@ PARAMS: tuple[ParamSpec, ...] = (
               1e-3, 100.0, read_only=False),
     ParamSpec("specific_force_tolerance", 0.5, "Reject samples with ||f| - g| above this "
               "fraction of g.", 0.01, 5.0, read_only=False),
-    ParamSpec("units_check_window", 20.0, "Window of the deg/s-versus-rad/s check, s "
+    ParamSpec("units_check_window", 30.0, "Window of the deg/s-versus-rad/s check, s "
               "(0 = off).", 0.0, 3600.0),
     ParamSpec("aligned_std_ratio", 1.5, "Aligned when each observable axis std <= this x its "
               "limit accuracy ...", 1.0, 100.0, read_only=False),

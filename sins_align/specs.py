@@ -90,9 +90,11 @@ def limit_error(lat_rad: float, accel_bias_n: np.ndarray, gyro_bias_n: np.ndarra
     g = gravity(lat_rad) if g is None else g
     a = np.asarray(accel_bias_n, dtype=float)
     e = np.asarray(gyro_bias_n, dtype=float)
-    wc = OMEGA_IE * np.cos(lat_rad)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        up = -e[..., 0] / wc + a[..., 0] * np.tan(lat_rad) / g
+    cl = np.cos(lat_rad)
+    if abs(cl) < 1e-9:
+        up = np.full(np.broadcast_shapes(a.shape, e.shape)[:-1], np.inf)
+    else:
+        up = -e[..., 0] / (OMEGA_IE * cl) + a[..., 0] * np.tan(lat_rad) / g
     return np.stack([-a[..., 1] / g, a[..., 0] / g, up], axis=-1)
 
 
@@ -111,8 +113,11 @@ def limit_covariance(lat_rad: float, specs: SensorSpecs, g: float | None = None)
     P[0, 0] = sa2 / g ** 2
     P[1, 1] = sa2 / g ** 2
     P[1, 2] = P[2, 1] = sa2 * t / g ** 2
-    with np.errstate(divide="ignore"):
-        P[2, 2] = se2 / wc ** 2 + sa2 * t * t / g ** 2 if abs(wc) > 1e-12 else np.inf
+    if abs(np.cos(lat_rad)) < 1e-9:
+        P[1, 2] = P[2, 1] = 0.0
+        P[2, 2] = np.inf
+    else:
+        P[2, 2] = se2 / wc ** 2 + sa2 * t * t / g ** 2
     return P
 
 

@@ -1,0 +1,87 @@
+"""Rotation utilities: exact, singularity-free, and in the conventions of ALGORITHM.md."""
+import numpy as np
+import pytest
+
+from sins_align import rotation as r
+from sins_align.specs import DEG
+
+
+def random_dcms(n, seed=0):
+    q = np.random.default_rng(seed).normal(size=(n, 4))
+    return r.dcm_from_quat(q / np.linalg.norm(q, axis=1, keepdims=True))
+
+
+def test_exp_log_roundtrip_all_angles_including_pi():
+    """so3_log inverts so3_exp for random rotations and at 0, 1e-9, pi - 1e-9 and pi."""
+    C = random_dcms(2000)
+    assert np.abs(r.so3_exp(r.so3_log(C)) - C).max() < 1e-14
+    for ang in (0.0, 1e-9, 1e-5, np.pi - 1e-9, np.pi):
+        for axis in np.eye(3).tolist() + [[1 / np.sqrt(3)] * 3]:
+            rv = ang * np.array(axis)
+            C1 = r.so3_exp(rv)
+            assert np.abs(C1 @ C1.T - np.eye(3)).max() < 1e-15
+            assert np.abs(r.so3_exp(r.so3_log(C1)) - C1).max() < 1e-14
+            assert abs(np.linalg.norm(r.so3_log(C1)) - ang) < 1e-12
+
+
+def test_exp_matches_series():
+    """Rodrigues agrees with a long matrix power series (no convention slip)."""
+    rv = np.array([0.3, -1.1, 2.0])
+    K = r.skew(rv)
+    E, term = np.eye(3), np.eye(3)
+    for k in range(1, 40):
+        term = term @ K / k
+        E = E + term
+    assert np.abs(r.so3_exp(rv) - E).max() < 1e-13
+
+
+def test_quaternion_dcm_consistent():
+    """quat <-> dcm round trip; the product of quaternions is the product of DCMs; w >= 0."""
+    C = random_dcms(500, 1)
+    q = r.quat_from_dcm(C)
+    assert (q[:, 3] >= 0).all()
+    assert np.abs(r.dcm_from_quat(q) - C).max() < 1e-14
+    qp = r.quat_multiply(q[:-1], q[1:])
+    assert np.abs(r.dcm_from_quat(qp) - C[:-1] @ C[1:]).max() < 1e-14
+    rv = r.so3_log(C)
+    assert np.abs(r.dcm_from_quat(r.quat_from_rotvec(rv)) - C).max() < 1e-14
+
+
+def test_rep103_rpy_definition():
+    """C = Rz(yaw) Ry(pitch) Rx(roll): yaw 90 deg turns body x from East to North."""
+    C = r.dcm_from_rpy(np.array([0.0, 0.0, 90.0]) * DEG)
+    assert np.allclose(C @ [1, 0, 0], [0, 1, 0], atol=1e-15)
+    C = r.dcm_from_rpy(np.array([0.0, 30.0, 0.0]) * DEG)   # nose down for positive pitch
+    assert C[2, 0] == pytest.approx(-np.sin(30 * DEG))
+
+
+@pytest.mark.parametrize("rpy", [(10, 90, 20), (10, -90, 20), (0, 89.9999, 179.9), (180, 0, 0),
+                                 (179.9, 1, -179.9), (-180, 45, 180), (0, 0, 180), (0, 0, -180)])
+def test_rpy_roundtrip_singular_and_upside_down(rpy):
+    """rpy_from_dcm reproduces the rotation at pitch +-90, heading +-180 and upside down."""
+    C = r.dcm_from_rpy(np.array(rpy, dtype=float) * DEG)
+    assert np.abs(r.dcm_from_rpy(r.rpy_from_dcm(C)) - C).max() < 1e-9
+
+
+def test_rpy_roundtrip_random():
+    C = random_dcms(1000, 2)
+    assert np.abs(r.dcm_from_rpy(r.rpy_from_dcm(C)) - C).max() < 1e-12
+
+
+def test_true_heading_clockwise_from_north():
+    """Body x East = 90 deg, North = 0, West = 270, South = 180; defined when x is vertical."""
+    for yaw, hdg in ((0, 90), (90, 0), (180, 270), (-90, 180), (45, 45)):
+        C = r.dcm_from_rpy(np.array([0, 0, yaw]) * DEG)
+        assert r.heading_from_dcm(C) / DEG == pytest.approx(hdg % 360, abs=1e-9)
+    C = r.dcm_from_rpy(np.array([0, 90, 30]) * DEG)       # x points down
+    h = r.heading_from_dcm(C)
+    assert np.isfinite(h) and 0 <= h < 2 * np.pi
+
+
+def test_attitude_error_convention():
+    """phi satisfies C_true = exp(phi x) C_est (paper eq. 15), also for large angles."""
+    C = random_dcms(100, 3)
+    phi = np.random.default_rng(4).normal(size=(100, 3))
+    Ct = r.so3_exp(phi) @ C
+    got = r.attitude_error(Ct, C)
+    assert np.abs(r.so3_exp(got) @ C - Ct).max() < 1e-13
