@@ -65,6 +65,8 @@ class AlignConfig:
     initial_rpy_deg : optional REP-103 [roll, pitch, yaw] of the IMU frame in ENU; None = identity.
         Any value converges; this only shortens the transient.
     coarse_velocity_noise : m/s, measurement noise std of the coarse (per-sample) pass.
+    coarse_update_period : s between coarse-pass updates; 0 = every sample (the paper). A
+        positive period updates with the mean velocity over the interval, as the fine pass.
     coarse_initial_std_deg : (level, heading) initial attitude std of the coarse pass.
     initial_velocity_std : m/s, initial velocity std (both passes).
     backtrack : run the fine pass over the buffered data (False = the paper's one-pass filter).
@@ -95,6 +97,7 @@ class AlignConfig:
     specs: SensorSpecs | str = "navigation"
     initial_rpy_deg: tuple[float, float, float] | None = None
     coarse_velocity_noise: float = 0.01
+    coarse_update_period: float = 0.0
     coarse_initial_std_deg: tuple[float, float] = (30.0, 90.0)
     initial_velocity_std: float = 0.1
     backtrack: bool = True
@@ -283,12 +286,13 @@ class AlignmentFilter:
         F = self._F(fn)
         self._propagate(F, dt)
         H = measurement_matrix(self.config.model, self.v)
-        if not self.fine:
+        period = self.fine_period if self.fine else self.config.coarse_update_period
+        if period <= 0.0:
             self._correct(self.v, H)
             return
         self.v_sum += self.v * dt
         self.t_acc += dt
-        if self.t_acc >= self.fine_period - 0.5 * dt:
+        if self.t_acc >= period - 0.5 * dt:
             Ha = averaged_measurement_matrix(H, F, self.t_acc)
             self._correct(self.v_sum / self.t_acc, Ha)
             self.v_sum = np.zeros((self.n, 3))
