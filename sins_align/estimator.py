@@ -64,9 +64,11 @@ class AlignConfig:
     specs : sensor error specs (or a grade name) — Q, the bias floor and observability.
     initial_rpy_deg : optional REP-103 [roll, pitch, yaw] of the IMU frame in ENU; None = identity.
         Any value converges; this only shortens the transient.
-    coarse_velocity_noise : m/s, measurement noise std of the coarse (per-sample) pass.
-    coarse_update_period : s between coarse-pass updates; 0 = every sample (the paper). A
-        positive period updates with the mean velocity over the interval, as the fine pass.
+    coarse_velocity_noise : m/s, measurement noise std of a coarse-pass update 0.01 s apart;
+        for an interval D it is scaled by sqrt(0.01 / D), so the noise density (and the
+        behaviour) does not depend on the IMU rate or the update interval.
+    coarse_update_period : s between coarse-pass updates (the instantaneous zero-velocity
+        measurement of the paper); 0 = at every sample, as in the paper.
     coarse_initial_std_deg : (level, heading) initial attitude std of the coarse pass.
     initial_velocity_std : m/s, initial velocity std (both passes).
     backtrack : run the fine pass over the buffered data (False = the paper's one-pass filter).
@@ -97,7 +99,7 @@ class AlignConfig:
     specs: SensorSpecs | str = "navigation"
     initial_rpy_deg: tuple[float, float, float] | None = None
     coarse_velocity_noise: float = 0.01
-    coarse_update_period: float = 0.0
+    coarse_update_period: float = 0.1
     coarse_initial_std_deg: tuple[float, float] = (30.0, 90.0)
     initial_velocity_std: float = 0.1
     backtrack: bool = True
@@ -144,6 +146,8 @@ class AlignConfig:
             v = getattr(self, name)
             _check(len(v) == 2 and all(math.isfinite(a) and a > 0 for a in v),
                    f"{name} must be two positive angles (level, heading), got {v!r}")
+        _check(math.isfinite(self.coarse_update_period) and 0.0 <= self.coarse_update_period <= 10.0,
+               f"coarse_update_period must be within [0, 10] s, got {self.coarse_update_period!r}")
         _check(self.rate_hz is None or (math.isfinite(self.rate_hz) and self.rate_hz > 0),
                f"rate_hz must be > 0 or None, got {self.rate_hz!r}")
         _check(self.units_check_window == 0.0 or self.units_check_window >= 5.0,
@@ -286,24 +290,30 @@ class AlignmentFilter:
         F = self._F(fn)
         self._propagate(F, dt)
         H = measurement_matrix(self.config.model, self.v)
-        period = self.fine_period if self.fine else self.config.coarse_update_period
-        if period <= 0.0:
-            self._correct(self.v, H)
+        if not self.fine:
+            # coarse pass: the paper's instantaneous zero-velocity update, at every sample or
+            # every coarse_update_period; R scaled so the noise density does not depend on it
+            period = self.config.coarse_update_period
+            self.t_acc += dt
+            if self.t_acc >= period - 0.5 * dt:
+                self._correct(self.v, H, scale=0.01 / self.t_acc)
+                self.t_acc = 0.0
             return
         self.v_sum += self.v * dt
         self.t_acc += dt
-        if self.t_acc >= period - 0.5 * dt:
+        if self.t_acc >= self.fine_period - 0.5 * dt:
             Ha = averaged_measurement_matrix(H, F, self.t_acc)
             self._correct(self.v_sum / self.t_acc, Ha)
             self.v_sum = np.zeros((self.n, 3))
             self.t_acc = 0.0
 
-    def _correct(self, z, H):
+    def _correct(self, z, H, scale: float = 1.0):
+        R = self.R * scale
         Ptot = self.total_covariance()
-        x, self.P, K = joseph_update(self.P, z, H, self.R)
+        x, self.P, K = joseph_update(self.P, z, H, R)
         self.S = self.S - K @ (H @ self.S)
         Ht = np.swapaxes(H, -1, -2)
-        r = nis(z, H @ Ptot @ Ht + self.R) / 3.0
+        r = nis(z, H @ Ptot @ Ht + R) / 3.0
         self.C, self.v = apply_correction(self.config.model, self.C, self.v, x)
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
