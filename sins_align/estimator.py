@@ -33,6 +33,7 @@ from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
 from .kalman import discretize, joseph_update, nis
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
+from .preint import earth_poly, open_loop_velocity, preintegrate
 from .rotation import dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm, so3_exp
 from .specs import DEG, SensorSpecs, grade_specs, limit_covariance
 
@@ -48,6 +49,10 @@ REJECT_REASONS = (
     "rate_too_high",              # |w| > max_angular_rate (deg/s sent as rad/s, or real motion)
     "rates_look_like_deg_per_s",  # gyro/accelerometer tilt mismatch: rates scaled by 57.3
 )
+
+#: gain schedules of the constant model, shared between filter instances (see _cov_block)
+_SCHEDULE_CACHE: dict = {}
+_SCHEDULE_CACHE_MAX = 20000
 
 STATES = ("waiting", "aligning", "aligned", "disturbed", "fault")
 
@@ -188,9 +193,15 @@ class AlignmentFilter:
         sp = c.specs
         self.Qc = np.diag([sp.gyro_arw ** 2] * 3 + [sp.accel_vrw ** 2] * 3)
         self.bias_cov = np.diag([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
+        self._bias_var = np.diag(self.bias_cov).copy()
         self.Gamma = bias_input_matrix(c.model)
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
+        self._K, self._W = earth_poly(self.w_ie)
+        self._K2 = self._K @ self._K
         self._cache: dict = {}
+        self._cfg_key = (c.model, self.w_ie.tobytes(), self.g_n.tobytes(), self.Qc.tobytes(),
+                         self._bias_var.tobytes())
+        self.fast = False
         C0 = np.asarray(C0, dtype=float).reshape(-1, 3, 3)
         self.n = len(C0)
         self._start_pass(C0, fine=False, std=c.coarse_initial_std_deg,
@@ -199,7 +210,8 @@ class AlignmentFilter:
         self.backtracked = False
         self.fine_R_std: np.ndarray | None = None
         self.fine_period = c.fine_update_period
-        self.steady_std: np.ndarray | None = None
+        self._steady_start = None
+        self._steady_std = None
         self._buf = _SampleBuffer(self.n) if c.backtrack else None
         self._B = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
         self.reinflations = np.zeros(self.n, dtype=int)
@@ -226,7 +238,7 @@ class AlignmentFilter:
 
     def total_covariance(self) -> np.ndarray:
         """Noise covariance plus the bias-induced part ``S Sigma_b S^T``, (1|N, 6, 6)."""
-        return self.P + self.S @ self.bias_cov @ np.swapaxes(self.S, -1, -2)
+        return self.P + (self.S * self._bias_var) @ self.S.mT
 
     # ------------------------------------------------------------------ one sample
     def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0):
@@ -235,17 +247,151 @@ class AlignmentFilter:
             self._buf.append(dt, w, f, gap)
             self._B = self._B @ so3_exp(w * dt)
         self._advance(dt, w, f, gap)
-        if (self._buf is not None and not self.backtracked
-                and self.t_int >= self.config.backtrack_time):
+        if self._backtrack_due(dt):
             self.backtrack()
 
+    def _backtrack_due(self, dt: float) -> bool:
+        return (self._buf is not None and not self.backtracked
+                and self.t_int >= self.config.backtrack_time - 0.5 * dt)
+
     def run(self, dt, w: np.ndarray, f: np.ndarray):
-        """Many samples: dt scalar or (T,), w and f (T, N, 3) (or (T, 3) when N = 1)."""
+        """Many samples through :meth:`step` one by one (the reference path).
+
+        dt scalar or (T,), w and f (T, N, 3) (or (T, 3) when N = 1).
+        """
         w = np.asarray(w, dtype=float).reshape(len(w), self.n, 3)
         f = np.asarray(f, dtype=float).reshape(len(f), self.n, 3)
         dts = np.broadcast_to(np.asarray(dt, dtype=float), (len(w),))
         for k in range(len(w)):
             self.step(float(dts[k]), w[k], f[k])
+
+    # ------------------------------------------------------------------ fast path
+    def run_fast(self, dt: float, w: np.ndarray, f: np.ndarray):
+        """Many samples at a constant interval ``dt``: same result as :meth:`run`.
+
+        Between updates the mechanization is integrated in closed form from vectorised
+        sums (:mod:`sins_align.preint`), and the covariance jumps by precomputed m-step
+        transition matrices, so the Python work is per update, not per sample. The update
+        schedule, the backtrack and every update are those of :meth:`run`; the results
+        agree to rounding (test_fast_path). Models other than 'constant' (whose F depends
+        on the state at every sample) go through :meth:`run`.
+        """
+        w = np.asarray(w, dtype=float).reshape(len(w), self.n, 3)
+        f = np.asarray(f, dtype=float).reshape(len(f), self.n, 3)
+        dt = float(dt)
+        if self.config.model != "constant":
+            self.run(dt, w, f)
+            return
+        self.fast = True
+        k, T = 0, len(w)
+        while k < T:
+            end = T
+            if self._buf is not None and not self.backtracked:
+                left = self.config.backtrack_time - 0.5 * dt - self.t_int
+                end = min(T, k + max(1, int(math.ceil(left / dt - 1e-9))))
+                self._buf.extend(dt, w[k:end], f[k:end])
+            self._advance_block(dt, w[k:end], f[k:end], track_B=not self.backtracked
+                                and self._buf is not None)
+            k = end
+            if self._backtrack_due(dt):
+                self.backtrack()
+
+    def _period(self) -> float:
+        return self.fine_period if self.fine else self.config.coarse_update_period
+
+    def _advance_block(self, dt: float, w, f, track_B: bool = False):
+        """Samples at a constant dt through the mechanization and the updates they contain."""
+        period = self._period()
+        thr = period - 0.5 * dt
+        first = max(1, int(math.ceil((thr - self.t_acc) / dt - 1e-9)))
+        full = max(1, int(math.ceil(thr / dt - 1e-9)))
+        T = len(w)
+        if first >= T:
+            lengths = [T]
+        else:
+            n_full, rest = divmod(T - first, full)
+            lengths = [first] + [full] * n_full + ([rest] if rest else [])
+        lengths = np.array(lengths)
+        dcm_end, A, V = preintegrate(dt, w, f, lengths, self._W, self.fine)
+        KT, K2T = self._K.T, self._K2.T
+        H = measurement_matrix("constant")
+        for i, m in enumerate(lengths.tolist()):
+            C0, v0 = self.C, self.v
+            C0T = C0.mT
+            a = (A[i][:, :, None, :] @ C0T)[:, :, 0]
+            self.v = v0 + a[0] + a[1] @ KT + a[2] @ K2T + self.g_n * (m * dt)
+            self.C = self._earth_rot(m, dt) @ C0 @ dcm_end[i]
+            if track_B:
+                self._B = self._B @ dcm_end[i]
+            self.t_int += m * dt
+            if self.fine:
+                b = (V[i][:, :, None, :] @ C0T)[:, :, 0]
+                self.v_sum = self.v_sum + v0 * (m * dt) + b[0] + b[1] @ KT + b[2] @ K2T \
+                    + self.g_n * (dt * dt * m * (m + 1) / 2.0)
+            self.t_acc += m * dt
+            if self.t_acc < thr:                    # partial interval: no update yet
+                Phi, Qd, Gm = self._disc_m(m, dt)
+                self.P = Phi @ self.P @ Phi.T + Qd
+                self.S = Phi @ self.S + Gm
+                continue
+            if self.fine:
+                Ha = self._cache.get(("Ha", self.t_acc))
+                if Ha is None:
+                    Ha = self._cache[("Ha", self.t_acc)] = averaged_measurement_matrix(
+                        H, self._Fconst, self.t_acc)
+                Kg, Sinv = self._cov_block(m, dt, Ha, 1.0)
+                self._apply(self.v_sum / self.t_acc, Kg, Sinv)
+                self.v_sum = np.zeros((self.n, 3))
+            else:
+                Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc)
+                self._apply(self.v, Kg, Sinv)
+            self.t_acc = 0.0
+
+    def _cov_block(self, m: int, dt: float, H, scale: float):
+        """Propagate P and S over m samples and do the covariance part of an update.
+
+        With one covariance shared by all runs (the constant model: it does not depend on
+        the data) the result only depends on the inputs of this function, so it is kept in
+        a bounded module-level cache: a second run of the same configuration (the next
+        bag, the next Monte Carlo batch) reuses the whole gain schedule.
+        """
+        shared = self.P.shape[0] == 1 and self.S.shape[0] == 1 and self.R.shape[0] == 1
+        if shared:
+            key = (self._cfg_key, self.P.tobytes(), self.S.tobytes(), self.R.tobytes(),
+                   H.tobytes(), m, dt, scale)
+            hit = _SCHEDULE_CACHE.get(key)
+            if hit is not None:
+                self.P, self.S, K, Sinv = hit
+                return K, Sinv
+        Phi, Qd, Gm = self._disc_m(m, dt)
+        self.P = Phi @ self.P @ Phi.T + Qd
+        self.S = Phi @ self.S + Gm
+        K, Sinv = self._gain(H, scale)
+        if shared:
+            if len(_SCHEDULE_CACHE) >= _SCHEDULE_CACHE_MAX:
+                _SCHEDULE_CACHE.clear()
+            _SCHEDULE_CACHE[key] = (self.P, self.S, K, Sinv)
+        return K, Sinv
+
+    def _earth_rot(self, m: int, dt: float):
+        key = ("Em", m, dt)
+        E = self._cache.get(key)
+        if E is None:
+            E = self._cache[key] = so3_exp(-self.w_ie * (m * dt))
+        return E
+
+    def _disc_m(self, m: int, dt: float):
+        """m-step transition, process noise and bias input of the constant model."""
+        key = ("Dm", m, dt)
+        hit = self._cache.get(key)
+        if hit is None:
+            Phi1, Qd1 = self._disc(self._Fconst, dt)
+            Phi, Qd, Gm = np.eye(6), np.zeros((6, 6)), np.zeros((6, 6))
+            G1 = self.Gamma * dt
+            for _ in range(m):
+                Phi, Qd, Gm = Phi1 @ Phi, Phi1 @ Qd @ Phi1.T + Qd1, Phi1 @ Gm + G1
+            hit = self._cache[key] = (Phi, Qd, Gm)
+        return hit
 
     def _earth_step(self, dt):
         key = ("E", dt)
@@ -308,19 +454,33 @@ class AlignmentFilter:
             self.t_acc = 0.0
 
     def _correct(self, z, H, scale: float = 1.0):
+        K, Sinv = self._gain(H, scale)
+        self._apply(z, K, Sinv)
+
+    def _gain(self, H, scale: float):
+        """Covariance part of an update: gain K and the inverse innovation covariance
+        (with the bias part) for the NIS. Updates P and S."""
         R = self.R * scale
         Ptot = self.total_covariance()
-        x, self.P, K = joseph_update(self.P, z, H, R)
+        PHt = self.P @ H.mT
+        K = PHt @ np.linalg.inv(H @ PHt + R)
+        IKH = np.eye(6) - K @ H
+        P = IKH @ self.P @ IKH.mT + K @ R @ K.mT
+        self.P = 0.5 * (P + P.mT)
         self.S = self.S - K @ (H @ self.S)
-        Ht = np.swapaxes(H, -1, -2)
-        r = nis(z, H @ Ptot @ Ht + R) / 3.0
+        return K, np.linalg.inv(H @ Ptot @ H.mT + R)
+
+    def _apply(self, z, K, Sinv):
+        """State part of an update: feedback of K z, NIS bookkeeping, re-inflation."""
+        x = (K @ z[..., None])[..., 0]
+        r = np.einsum("...i,...ij,...j->...", z, Sinv, z) / 3.0
         self.C, self.v = apply_correction(self.config.model, self.C, self.v, x)
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
         self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
         c = self.config
         bad = (self.nis_mean > c.reinflate_nis) & (
-            self.t_int - self.last_reinflate >= c.reinflate_holdoff)
+            self.t_int - self.last_reinflate >= c.reinflate_holdoff - 1e-6)
         if bad.any():
             self._reinflate(bad)
 
@@ -355,12 +515,24 @@ class AlignmentFilter:
         R = np.zeros((self.n, 3, 3))
         R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
         self._start_pass(C0, fine=True, std=c.fine_initial_std_deg, R=R)
-        self.steady_std = self._steady_state_std()
+        self._steady_start = (self.P.copy(), self.S.copy())
         self.stage = "fine"
         self.backtracked = True
         self._buf = None
+        uniform = len(dt) > 0 and not gap.any() and np.all(dt == dt[0])
+        if self.fast and uniform and c.model == "constant":
+            self._advance_block(float(dt[0]), w, f)
+            return
         for k in range(len(dt)):
             self._advance(float(dt[k]), w[k], f[k], float(gap[k]))
+
+    @property
+    def steady_std(self) -> np.ndarray | None:
+        """Attitude std (N, 3), rad, the fine pass tends to (None before the backtrack);
+        computed on first use."""
+        if self._steady_std is None and self._steady_start is not None:
+            self._steady_std = self._steady_state_std()
+        return self._steady_std
 
     def _steady_state_std(self, horizon: float = 1800.0) -> np.ndarray:
         """Attitude std (N, 3), rad, the fine pass tends to on a static base: the covariance
@@ -375,7 +547,7 @@ class AlignmentFilter:
             self.config.model, self.w_ie, self.g_n, -self.g_n, np.zeros(3))
         Phi, Qd = discretize(F, self.Qc, T)
         H = averaged_measurement_matrix(measurement_matrix(self.config.model, np.zeros(3)), F, T)
-        P, S = self.P.copy(), self.S.copy()
+        P, S = self._steady_start
         Gd = self.Gamma * T
         for _ in range(int(horizon / T)):
             P = Phi @ P @ Phi.T + Qd
@@ -402,14 +574,7 @@ class AlignmentFilter:
         r_std : ndarray (N, 3), m/s ; period : float, s
         """
         c = self.config
-        C = C0.copy()
-        v = np.zeros((self.n, 3))
-        vs = np.empty((len(dt), self.n, 3))
-        for k in range(len(dt)):
-            d = float(dt[k])
-            C = self._earth_step(d) @ C @ so3_exp(w[k] * d)
-            v = v + ((C @ f[k][..., None])[..., 0] + self.g_n) * d
-            vs[k] = v
+        vs = open_loop_velocity(dt, w, f, C0, self.w_ie, self.g_n)
         t = np.cumsum(dt)
         tn = (t - t.mean()) / (t.std() + 1e-12)
         A = np.vander(tn, 4)
@@ -728,6 +893,17 @@ class _SampleBuffer:
         self._wf[self._n, :, :3] = w
         self._wf[self._n, :, 3:] = f
         self._n += 1
+
+    def extend(self, dt, w, f):
+        """Append a block of samples (constant dt, no gaps): w, f (M, N, 3)."""
+        m = len(w)
+        while self._n + m > len(self._t):
+            self._t = np.concatenate([self._t, np.empty_like(self._t)])
+            self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
+        self._t[self._n:self._n + m] = (dt, 0.0)
+        self._wf[self._n:self._n + m, :, :3] = w
+        self._wf[self._n:self._n + m, :, 3:] = f
+        self._n += m
 
     def arrays(self):
         t = self._t[: self._n]

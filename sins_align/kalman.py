@@ -54,13 +54,12 @@ def joseph_update(P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray):
     P : ndarray (..., n, n) — posterior covariance (symmetrised).
     K : ndarray (..., n, m) — gain.
     """
-    PHt = P @ _T(H)
-    S = H @ PHt + R
-    K = _T(np.linalg.solve(S, _T(PHt)))
+    PHt = P @ H.mT
+    K = PHt @ np.linalg.inv(H @ PHt + R)
     IKH = np.eye(P.shape[-1]) - K @ H
-    P = IKH @ P @ _T(IKH) + K @ R @ _T(K)
+    P = IKH @ P @ IKH.mT + K @ R @ K.mT
     x = (K @ nu[..., None])[..., 0]
-    return x, 0.5 * (P + _T(P)), K
+    return x, 0.5 * (P + P.mT), K
 
 
 def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -69,4 +68,4 @@ def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
     Chi-square with m degrees of freedom when the model fits the data; large values mean
     motion, a bad sensor or a wrong noise setting.
     """
-    return np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+    return np.einsum("...i,...ij,...j->...", nu, np.linalg.inv(S), nu)

@@ -13,6 +13,8 @@ Every function accepts a single item or a stack (leading dimensions) of items.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -36,6 +38,8 @@ def so3_exp(rotvec: np.ndarray) -> np.ndarray:
     at every angle, including zero and pi.
     """
     rv = np.asarray(rotvec, dtype=float)
+    if rv.size == 3:
+        return _so3_exp_one(rv)
     th2 = np.sum(rv * rv, axis=-1)
     th = np.sqrt(th2)
     small = th < 1e-4
@@ -45,6 +49,24 @@ def so3_exp(rotvec: np.ndarray) -> np.ndarray:
     K = skew(rv)
     eye = np.broadcast_to(np.eye(3), K.shape)
     return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def _so3_exp_one(rv: np.ndarray) -> np.ndarray:
+    """so3_exp of a single rotation vector (shape (3,) or (1, 3)): same formulas, scalar math."""
+    x, y, z = (float(c) for c in rv.reshape(3))
+    th2 = x * x + y * y + z * z
+    if th2 < 1e-8:
+        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    else:
+        th = math.sqrt(th2)
+        a = math.sin(th) / th
+        b = (1.0 - math.cos(th)) / th2
+    bxy, bxz, byz = b * x * y, b * x * z, b * y * z
+    out = np.array([[1.0 - b * (y * y + z * z), bxy - a * z, bxz + a * y],
+                    [bxy + a * z, 1.0 - b * (x * x + z * z), byz - a * x],
+                    [bxz - a * y, byz + a * x, 1.0 - b * (x * x + y * y)]])
+    return out.reshape(rv.shape[:-1] + (3, 3))
 
 
 def quat_from_rotvec(rotvec: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ def run_filter(cfg, C0, sims, checkpoints):
     k = 0
     for T in checkpoints:
         n = int(round(T * rate))
-        fl.run(1.0 / rate, W[k:n], F[k:n])
+        fl.run_fast(1.0 / rate, W[k:n], F[k:n])
         k = n
         yield T, attitude_error(Ct[n - 1], fl.C), fl
 
