@@ -33,8 +33,8 @@ from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
 from .kalman import discretize, joseph_update, nis
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
-from .preint import earth_poly, open_loop_velocity, preintegrate
-from .rotation import dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm, so3_exp
+from .preint import earth_poly, open_loop_velocity, prefix_rotations, preintegrate
+from .rotation import dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm, so3_exp
 from .specs import DEG, SensorSpecs, grade_specs, limit_covariance
 
 #: Reasons a sample can be rejected. A rejected sample never touches the filter state.
@@ -49,6 +49,10 @@ REJECT_REASONS = (
     "rate_too_high",              # |w| > max_angular_rate (deg/s sent as rad/s, or real motion)
     "rates_look_like_deg_per_s",  # gyro/accelerometer tilt mismatch: rates scaled by 57.3
 )
+
+#: blocks of at least this many clean samples take the fast path in Aligner.update
+FAST_MIN_BLOCK = 64
+FAST_MAX_BLOCK = 8192
 
 #: gain schedules of the constant model, shared between filter instances (see _cov_block)
 _SCHEDULE_CACHE: dict = {}
@@ -199,6 +203,8 @@ class AlignmentFilter:
         self._K, self._W = earth_poly(self.w_ie)
         self._K2 = self._K @ self._K
         self._cache: dict = {}
+        self.on_update = None          # fast path: called with the sample index after updates
+        self._rerun = False
         self._cfg_key = (c.model, self.w_ie.tobytes(), self.g_n.tobytes(), self.Qc.tobytes(),
                          self._bias_var.tobytes())
         self.fast = False
@@ -291,15 +297,17 @@ class AlignmentFilter:
                 end = min(T, k + max(1, int(math.ceil(left / dt - 1e-9))))
                 self._buf.extend(dt, w[k:end], f[k:end])
             self._advance_block(dt, w[k:end], f[k:end], track_B=not self.backtracked
-                                and self._buf is not None)
+                                and self._buf is not None, offset=k)
             k = end
             if self._backtrack_due(dt):
                 self.backtrack()
+                if self.on_update is not None:
+                    self.on_update(end - 1)
 
     def _period(self) -> float:
         return self.fine_period if self.fine else self.config.coarse_update_period
 
-    def _advance_block(self, dt: float, w, f, track_B: bool = False):
+    def _advance_block(self, dt: float, w, f, track_B: bool = False, offset: int | None = None):
         """Samples at a constant dt through the mechanization and the updates they contain."""
         period = self._period()
         thr = period - 0.5 * dt
@@ -346,6 +354,8 @@ class AlignmentFilter:
                 Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc)
                 self._apply(self.v, Kg, Sinv)
             self.t_acc = 0.0
+            if self.on_update is not None and offset is not None:
+                self.on_update(offset + int(lengths[:i + 1].sum()) - 1)
 
     def _cov_block(self, m: int, dt: float, H, scale: float):
         """Propagate P and S over m samples and do the covariance part of an update.
@@ -519,9 +529,10 @@ class AlignmentFilter:
         self.stage = "fine"
         self.backtracked = True
         self._buf = None
-        uniform = len(dt) > 0 and not gap.any() and np.all(dt == dt[0])
+        uniform = len(dt) > 0 and not gap.any() and np.all(
+            np.abs(dt - dt.mean()) <= 1e-6 * dt.mean())
         if self.fast and uniform and c.model == "constant":
-            self._advance_block(float(dt[0]), w, f)
+            self._advance_block(float(dt.mean()), w, f)
             return
         for k in range(len(dt)):
             self._advance(float(dt[k]), w[k], f[k], float(gap[k]))
@@ -548,15 +559,27 @@ class AlignmentFilter:
         Phi, Qd = discretize(F, self.Qc, T)
         H = averaged_measurement_matrix(measurement_matrix(self.config.model, np.zeros(3)), F, T)
         P, S = self._steady_start
+        key = ("steady", self._cfg_key, P.tobytes(), S.tobytes(), self.R.tobytes(), T)
+        hit = _SCHEDULE_CACHE.get(key)
+        if hit is not None:
+            return hit
         Gd = self.Gamma * T
-        for _ in range(int(horizon / T)):
+        prev = None
+        for i in range(int(horizon / T)):
             P = Phi @ P @ Phi.T + Qd
             S = Phi @ S + Gd
             _, P, K = joseph_update(P, np.zeros((P.shape[0], 3)), H, self.R)
             S = S - K @ (H @ S)
+            if i % 25 == 24:                      # stop once the attitude std has settled
+                d = np.diagonal(P + (S * self._bias_var) @ S.mT, axis1=1, axis2=2)[:, :3]
+                if prev is not None and np.all(np.abs(d - prev) <= 1e-6 * d):
+                    break
+                prev = d
         tot = P + S @ self.bias_cov @ np.swapaxes(S, -1, -2)
-        return np.broadcast_to(np.sqrt(np.diagonal(tot[:, :3, :3], axis1=1, axis2=2)),
-                               (self.n, 3))
+        out = np.broadcast_to(np.sqrt(np.diagonal(tot[:, :3, :3], axis1=1, axis2=2)),
+                              (self.n, 3))
+        _SCHEDULE_CACHE[key] = out
+        return out
 
     def _sway_velocity_std(self, C0, dt, w, f):
         """Measure the sway velocity; pick the fine update period and its noise.
@@ -585,7 +608,7 @@ class AlignmentFilter:
         r_std = None
         for mult in (1, 2, 5, 10, 20):
             p = base * mult
-            idx = np.floor(t / p).astype(int)
+            idx = np.floor((t - 0.5 * dt) / p).astype(int)   # sample midpoints: no ties
             n_int = int(idx[-1])
             if n_int < 8:
                 break
@@ -762,10 +785,65 @@ class Aligner:
         f = np.asarray(accel, dtype=float).reshape(-1, 3)
         if not (len(t) == len(w) == len(f)):
             raise ValueError(f"stamp, gyro and accel lengths differ: {len(t)}, {len(w)}, {len(f)}")
-        n = 0
-        for k in range(len(t)):
-            n += self._sample(float(t[k]), w[k], f[k])
+        n, k = 0, 0
+        while k < len(t):
+            j = self._clean_run(t, w, f, k)
+            if j - k >= FAST_MIN_BLOCK:
+                n += self._accept_block(t[k:j], w[k:j], f[k:j])
+                k = j
+            else:
+                n += self._sample(float(t[k]), w[k], f[k])
+                k += 1
         return n
+
+    def _clean_run(self, t, w, f, k) -> int:
+        """End index of the run of samples from k that the per-sample checks would all accept
+        as ordinary samples at one constant interval (no gap, no rejection, no units-check
+        window closing): those can take the filter's fast path with identical results."""
+        c = self.config
+        if (c.model != "constant" or self.t_last is None or self.nominal_dt is None
+                or self.units_suspect or self._t_prev_raw != self.t_last
+                or len(t) - k < FAST_MIN_BLOCK):
+            return k
+        tt = t[k:k + FAST_MAX_BLOCK]
+        dts = np.diff(tt, prepend=self.t_last)
+        nom = self.nominal_dt
+        fn = np.linalg.norm(f[k:k + len(tt)], axis=1)
+        wn = np.linalg.norm(w[k:k + len(tt)], axis=1)
+        ok = (np.isfinite(tt) & np.isfinite(w[k:k + len(tt)]).all(1)
+              & np.isfinite(f[k:k + len(tt)]).all(1)
+              & (dts >= c.min_dt_ratio * nom) & (dts <= c.gap_ratio * nom) & (dts <= c.max_gap)
+              & (np.abs(dts - dts[0]) <= 1e-6 * dts[0])
+              & (fn >= 0.25 * self.g) & (np.abs(fn - self.g) <= c.specific_force_tolerance * self.g)
+              & (wn <= c.max_angular_rate))
+        m = len(tt) if ok.all() else int(np.argmin(ok))
+        if self._units is not None and m:
+            # stop before the sample that closes the current units-check window
+            T = self._units.T + np.cumsum(dts[:m])
+            closing = np.nonzero(T >= self._units.window)[0]
+            if len(closing):
+                m = int(closing[0])
+        return k + m
+
+    def _accept_block(self, t, w, f) -> int:
+        dts = np.diff(t, prepend=self.t_last)
+        if self._units is not None:
+            self._units.add_block(dts, w, f)
+        self.t_last = self._t_prev_raw = float(t[-1])
+        self.samples_used += len(t)
+
+        def check(i):                     # after every live update, as after every sample
+            self.t_last = float(t[i])
+            self._refresh_aligned()
+
+        self.filter.on_update = check
+        try:
+            self.filter.run_fast(float(np.mean(dts)), w, f)
+        finally:
+            self.filter.on_update = None
+        self.t_last = float(t[-1])
+        self._refresh_aligned()
+        return len(t)
 
     def _reject(self, reason: str) -> int:
         self.rejected[reason] += 1
@@ -933,6 +1011,16 @@ class _UnitsMonitor:
         self.B = np.eye(3)
         self.f_head = np.zeros(3)
         self.f_tail = np.zeros(3)
+
+    def add_block(self, dts, w, f):
+        """Samples that do not close the window (Aligner._clean_run guarantees it)."""
+        q = prefix_rotations(dts[None, :, None], w[None, :, None])
+        self.B = self.B @ dcm_from_quat(np.array([c[0, -1, 0] for c in q]))
+        T = self.T + np.cumsum(dts)
+        fd = f * dts[:, None]
+        self.f_head += fd[T <= 1.0].sum(0)
+        self.f_tail += fd[T > self.window - 1.0].sum(0)
+        self.T = float(T[-1])
 
     def add(self, dt, w, f):
         if not 0.0 < dt <= self.window:
