@@ -13,6 +13,12 @@ package_name = 'sins_align'
 # a plain list of string literals.
 ENTRY_POINTS = [
     'demo = sins_align.demo:main',
+    'align_node = sins_align.align_node:main',
+    'imu_sim_node = sins_align.imu_sim_node:main',
+    'replay = sins_align.replay:main',
+    'simulate = sins_align.simulate:main',
+    'import_imu = sins_align.import_imu:main',
+    'montecarlo = sins_align.montecarlo:main',
 ]
 
 setup(
@@ -33,6 +39,8 @@ setup(
                 'from IMU data on a quasi-static base',
     license='BSD-3-Clause',
     tests_require=['pytest'],
+    # --plot of the replay and montecarlo tools; the tools fail fast with a hint without it
+    extras_require={'plot': ['matplotlib>=3.8']},
     entry_points={
         'console_scripts': ENTRY_POINTS,
     },

@@ -186,10 +186,13 @@ class AlignmentFilter:
     ----------
     config : AlignConfig
     C0 : ndarray (N, 3, 3) — initial C_b^n estimate of each run.
+    fast_backtrack : re-run the buffer with the fast path when it is uniformly sampled
+        (constant model); False keeps the whole run on the per-sample reference path.
     """
 
-    def __init__(self, config: AlignConfig, C0: np.ndarray):
+    def __init__(self, config: AlignConfig, C0: np.ndarray, fast_backtrack: bool = True):
         self.config = c = config
+        self.fast_backtrack = fast_backtrack
         self.lat = c.latitude_deg * DEG
         self.w_ie = earth_rate_enu(self.lat)
         self.g_n = gravity_enu(self.lat, c.height_m)
@@ -531,7 +534,7 @@ class AlignmentFilter:
         self._buf = None
         uniform = len(dt) > 0 and not gap.any() and np.all(
             np.abs(dt - dt.mean()) <= 1e-6 * dt.mean())
-        if self.fast and uniform and c.model == "constant":
+        if self.fast_backtrack and uniform and c.model == "constant":
             self._advance_block(float(dt.mean()), w, f)
             return
         for k in range(len(dt)):
@@ -714,10 +717,19 @@ class Aligner:
         """Published attitude-error covariance (E/N/U, rad^2, phi of paper eq. 15).
 
         Filter covariance plus the bias-induced part ``S Sigma_b S^T`` for biases drawn from
-        the specs (consider analysis). When heading is unobservable the U row/column is
-        cleared and its variance set to pi^2.
+        the specs (consider analysis). Before the backtrack the coarse pass is a starting
+        point, not a result: its own covariance can be far too small in large-angle
+        transients, so the published std is at least ``fine_initial_std_deg`` in level and
+        ``coarse_initial_std_deg`` in heading until the fine pass runs. When heading is
+        unobservable the U row/column is cleared and its variance set to pi^2.
         """
         P = self.filter.total_covariance()[0, :3, :3].copy()
+        c = self.config
+        if c.backtrack and not self.filter.backtracked:
+            floor = np.array([c.fine_initial_std_deg[0]] * 2 + [c.coarse_initial_std_deg[1]]) * DEG
+            sd = np.sqrt(np.diag(P))
+            scale = np.maximum(floor, sd) / sd
+            P = P * np.outer(scale, scale)
         if not self.heading_observable:
             P[2, :] = 0.0
             P[:, 2] = 0.0

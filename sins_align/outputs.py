@@ -61,8 +61,8 @@ def diagnostic_status(al: Aligner, input_rate_hz: float | None = None
 
     Returns
     -------
-    level : int — OK (aligned or aligning), WARN (waiting, disturbed, samples rejected
-        recently), ERROR (fault).
+    level : int — OK (aligned or aligning), WARN (waiting, disturbed), ERROR (fault). The
+        node raises OK to WARN itself when samples were rejected recently (it knows when).
     message : str
     values : list of (key, value) strings
     """

@@ -46,8 +46,10 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("accel_bias", -1.0, "Accelerometer bias 1-sigma, micro-g (-1 = from grade).", -1.0, 1e6),
     ParamSpec("accel_vrw", -1.0, "Accelerometer white noise, micro-g/sqrt(Hz) (-1 = from grade).",
               -1.0, 1e6),
-    ParamSpec("velocity_noise", 0.01, "Zero-velocity measurement noise of the coarse pass, m/s.",
-              1e-6, 10.0),
+    ParamSpec("velocity_noise", 0.01, "Zero-velocity measurement noise of the coarse pass, m/s "
+              "for updates 0.01 s apart (scaled to the update interval).", 1e-6, 10.0),
+    ParamSpec("coarse_update_period", 0.1, "Coarse-pass update interval, s (0 = every sample, "
+              "as in the paper).", 0.0, 10.0),
     ParamSpec("backtrack", True, "Re-run the buffered data in the fine pass once a first "
               "estimate exists (False = the paper's one-pass filter)."),
     ParamSpec("backtrack_time", 60.0, "Data time after which the fine pass starts, s.", 5.0, 3600.0),
@@ -78,6 +80,7 @@ PARAMS_BY_NAME = {p.name: p for p in PARAMS}
 
 _TO_CONFIG = {
     "height": "height_m", "model": "model", "velocity_noise": "coarse_velocity_noise",
+    "coarse_update_period": "coarse_update_period",
     "backtrack": "backtrack", "backtrack_time": "backtrack_time",
     "fine_update_period": "fine_update_period", "max_gap": "max_gap",
     "max_angular_rate": "max_angular_rate", "specific_force_tolerance": "specific_force_tolerance",

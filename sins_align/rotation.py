@@ -99,6 +99,8 @@ def rotvec_from_quat(q: np.ndarray) -> np.ndarray:
 def quat_from_dcm(C: np.ndarray) -> np.ndarray:
     """Quaternion [x, y, z, w] (w >= 0) of a DCM; Shepperd's method, stable at every angle."""
     C = np.asarray(C, dtype=float)
+    if C.shape == (3, 3):
+        return _quat_from_dcm_one(C)
     tr = np.trace(C, axis1=-2, axis2=-1)
     diag = np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 2, 2], tr], axis=-1)
     choice = np.argmax(diag, axis=-1)
@@ -118,6 +120,25 @@ def quat_from_dcm(C: np.ndarray) -> np.ndarray:
     q = np.take_along_axis(cands, choice[..., None, None], axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., 3:4] < 0.0, -q, q)
+
+
+def _quat_from_dcm_one(C: np.ndarray) -> np.ndarray:
+    """quat_from_dcm of a single DCM: the same Shepperd branches, scalar math."""
+    (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = C.tolist()
+    tr = c00 + c11 + c22
+    k = max(range(4), key=(c00, c11, c22, tr).__getitem__)
+    if k == 0:
+        q = (1 + 2 * c00 - tr, c10 + c01, c20 + c02, c21 - c12)
+    elif k == 1:
+        q = (c10 + c01, 1 + 2 * c11 - tr, c21 + c12, c02 - c20)
+    elif k == 2:
+        q = (c20 + c02, c21 + c12, 1 + 2 * c22 - tr, c10 - c01)
+    else:
+        q = (c21 - c12, c02 - c20, c10 - c01, 1 + tr)
+    n = math.sqrt(sum(x * x for x in q))
+    if q[3] < 0.0:
+        n = -n
+    return np.array([x / n for x in q])
 
 
 def dcm_from_quat(q: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ TOL_RAD = 1e-9
 
 
 def pair(cfg, C0, s, chunk=None):
-    ref, fast = AlignmentFilter(cfg, C0), AlignmentFilter(cfg, C0)
+    ref, fast = AlignmentFilter(cfg, C0, fast_backtrack=False), AlignmentFilter(cfg, C0)
     ref.run(1.0 / s.rate, s.gyro, s.accel)
     if chunk is None:
         fast.run_fast(1.0 / s.rate, s.gyro, s.accel)

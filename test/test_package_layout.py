@@ -1,15 +1,15 @@
 """The package is a working ament_python package.
 
 A copy of the package source is built with the venv's colcon (colcon-ros from PyPI) into a
-temporary workspace; the tests check the installed layout that ``ros2 run`` relies on and run
-every installed executable with ``--help``. A second group checks that package.xml declares an
-``exec_depend`` for every ROS package the code imports.
+temporary workspace (test/colcon_build.py, one build per session); the tests check the
+installed layout that ``ros2 run`` relies on and run every installed executable with
+``--help``. A second group checks that package.xml declares an ``exec_depend`` for every ROS
+package the code imports.
 """
 from __future__ import annotations
 
 import ast
 import os
-import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -17,10 +17,7 @@ from pathlib import Path
 
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-PKG = 'sins_align'
-VENV_BIN = Path(sys.executable).parent
-PY_VER = f'python{sys.version_info.major}.{sys.version_info.minor}'
+from colcon_build import PKG, REPO_ROOT, installed_env, session_install
 
 # ROS packages whose import needs an exec_depend of the same name.
 ROS_PACKAGES = {'rclpy', 'sensor_msgs', 'geometry_msgs', 'std_msgs', 'std_srvs',
@@ -46,42 +43,8 @@ def executable_names() -> list[str]:
 
 @pytest.fixture(scope='module')
 def install_dir(tmp_path_factory) -> Path:
-    """Build a copy of the package with colcon; return install/<pkg>."""
-    ws = tmp_path_factory.mktemp('colcon_ws')
-    src = ws / 'src' / PKG
-    src.mkdir(parents=True)
-    for name in ('package.xml', 'setup.py', 'setup.cfg'):
-        shutil.copy2(REPO_ROOT / name, src / name)
-    ignore = shutil.ignore_patterns('__pycache__', '*.pyc', '.venv', '*.egg-info')
-    for name in ('resource', PKG):
-        shutil.copytree(REPO_ROOT / name, src / name, ignore=ignore)
-
-    colcon = VENV_BIN / 'colcon'
-    assert colcon.exists(), f'{colcon} missing: run `make setup` (colcon-ros is pinned there)'
-    env = dict(os.environ)
-    env['PATH'] = f"{VENV_BIN}{os.pathsep}{env.get('PATH', '')}"
-    env['COLCON_HOME'] = str(ws / 'colcon_home')  # ignore any user-level colcon defaults
-    env.pop('PYTHONPATH', None)
-    cmd = [str(colcon), '--log-base', str(ws / 'log'), 'build',
-           '--base-paths', str(ws / 'src'),
-           '--build-base', str(ws / 'build'),
-           '--install-base', str(ws / 'install'),
-           '--executor', 'sequential']
-    proc = subprocess.run(cmd, cwd=ws, env=env, capture_output=True, text=True,
-                          stdin=subprocess.DEVNULL, timeout=300)
-    assert proc.returncode == 0, (
-        f'colcon build failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}')
-    return ws / 'install' / PKG
-
-
-def installed_env(install_dir: Path) -> dict[str, str]:
-    """Environment that runs installed executables against the installed package."""
-    env = dict(os.environ)
-    env['PYTHONPATH'] = str(install_dir / 'lib' / PY_VER / 'site-packages')
-    env['PATH'] = f"{VENV_BIN}{os.pathsep}{env.get('PATH', '')}"
-    env['AMENT_PREFIX_PATH'] = os.pathsep.join(
-        p for p in (str(install_dir), env.get('AMENT_PREFIX_PATH', '')) if p)
-    return env
+    """Build a copy of the package with colcon (once per session); return install/<pkg>."""
+    return session_install(tmp_path_factory)
 
 
 def test_entry_points_are_well_formed():

@@ -1,0 +1,449 @@
+"""align_node: live SINS self-alignment of an IMU on a quasi-static base.
+
+Subscribes ``imu/data_raw`` (sensor_msgs/Imu, REP-145 units) and runs the numpy
+:class:`~sins_align.estimator.Aligner` on every sample; the node only converts messages
+and publishes (STYLE.md: algorithm apart from ROS). What it publishes comes from
+:mod:`sins_align.outputs`, the same values the bag replay writes.
+
+Topics (relative names, remap as usual)
+---------------------------------------
+- sub ``imu/data_raw``  sensor_msgs/Imu — sensor-data QoS (best effort) with a deeper
+  history (``queue_size``) so the backtrack pass does not drop samples.
+- pub ``imu/data``      sensor_msgs/Imu — the input sample (same header) with ``orientation``
+  (C_b^n, IMU frame in ENU) and ``orientation_covariance`` (rad^2, E/N/U) filled in.
+  Rejected samples are not republished.
+- pub ``alignment/aligned``   std_msgs/Bool — RELIABLE + TRANSIENT_LOCAL, depth 1: false at
+  start, then on every change. Subscribers must ask for TRANSIENT_LOCAL to get the latched value.
+- pub ``alignment/euler_deg`` geometry_msgs/Vector3Stamped — REP-103 roll, pitch, yaw in
+  degrees at ``euler_rate`` Hz, stamped with the latest input stamp and frame.
+- pub ``/diagnostics``  diagnostic_msgs/DiagnosticArray at 1 Hz.
+- srv ``alignment/reset`` std_srvs/Trigger — restart the alignment, keep the node.
+
+Parameters: every entry of :data:`sins_align.params.PARAMS` (``latitude`` is required),
+plus the node-only ``euler_rate`` (Hz) and ``queue_size``. See ``config/align.yaml``.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import time
+
+from .params import NODE_NAME, PARAMS, check_param, config_from_params
+
+#: Node-only parameters: name -> (default, description, low, high, read_only).
+NODE_PARAMS = {
+    "euler_rate": (10.0, "Publishing rate of alignment/euler_deg, Hz.", 0.1, 1000.0, False),
+    "queue_size": (1000, "History depth of the imu/data_raw subscription (sensor-data QoS "
+                         "otherwise): covers the pause of the backtrack pass.", 5, 100000, True),
+}
+
+#: What each rejection reason (estimator.REJECT_REASONS) means, for the throttled warnings.
+REASON_TEXT = {
+    "nonfinite": "NaN or Inf in the stamp, angular_velocity or linear_acceleration",
+    "duplicate_stamp": "same stamp as the previous sample",
+    "stamp_backwards": "stamp earlier than the previous sample",
+    "dt_too_small": "stamp interval far below the nominal IMU period",
+    "time_jump": "stamp gap above max_gap: time re-anchored, alignment kept",
+    "gravity_removed": "|linear_acceleration| far below g: gravity was removed "
+                       "(REP-145 wants specific force)",
+    "specific_force_out_of_range": "|linear_acceleration| too far from g "
+                                   "(units? the platform is not quasi-static?)",
+    "rate_too_high": "|angular_velocity| above max_angular_rate (deg/s instead of rad/s, "
+                     "or real motion)",
+    "rates_look_like_deg_per_s": "gyro and accelerometer tilt disagree: angular_velocity "
+                                 "looks like deg/s (REP-145 wants rad/s)",
+}
+
+#: Samples this far (s) before the last accepted one, several in a row, mean time restarted.
+BACKWARD_JUMP_CONFIRM = 3
+WARN_PERIOD = 5.0   # s (wall) between warnings for one rejection reason
+
+
+class StartupError(RuntimeError):
+    """The node cannot start (bad parameters); the reason was logged already."""
+
+
+def build_arg_parser(prog: str, description: str, epilog: str) -> argparse.ArgumentParser:
+    """An argparse parser that only documents (``--help``); ROS arguments pass through."""
+    return argparse.ArgumentParser(
+        prog=prog, description=description, epilog=epilog, allow_abbrev=False,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def parse_cli(parser: argparse.ArgumentParser, args: list[str] | None) -> argparse.Namespace:
+    """Parse the non-ROS command line (``--help`` exits here, before rclpy.init)."""
+    from rclpy.utilities import remove_ros_args
+
+    argv = list(sys.argv if args is None else args)
+    ns, unknown = parser.parse_known_args(remove_ros_args(argv)[1:])
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)} "
+                     "(ROS arguments go after --ros-args)")
+    return ns
+
+
+def _param_help() -> str:
+    lines = ["parameters (set with --ros-args -p name:=value or --params-file):"]
+    for p in PARAMS:
+        ro = "" if p.read_only else " [runtime]"
+        lines.append(f"  {p.name} (default {p.default!r}){ro}: {p.description}")
+    for name, (default, text, _, _, ro) in NODE_PARAMS.items():
+        lines.append(f"  {name} (default {default!r}){'' if ro else ' [runtime]'}: {text}")
+    return "\n".join(lines)
+
+
+def _plain(value):
+    """A parameter value as plain Python (arrays to lists, ints to floats where numeric)."""
+    if isinstance(value, (str, bool)) or value is None:
+        return value
+    if isinstance(value, (int, float)):
+        return float(value)
+    return [float(x) for x in value]
+
+
+def _make_node_class():
+    """Define the rclpy node class (rclpy is imported only after --help was handled)."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from geometry_msgs.msg import Vector3Stamped
+    from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                    SetParametersResult)
+    from rclpy.clock import JumpThreshold
+    from rclpy.duration import Duration
+    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+    from rclpy.node import Node
+    from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                           qos_profile_sensor_data)
+    from sensor_msgs.msg import Imu
+    from std_msgs.msg import Bool
+    from std_srvs.srv import Trigger
+
+    from .estimator import Aligner
+    from .outputs import WARN, StampClock, diagnostic_status, euler_deg, imu_output, imu_sample
+
+    class AlignNode(Node):
+        """ROS wrapper of :class:`Aligner`: messages in, messages out, nothing else."""
+
+        def __init__(self, **kwargs):
+            super().__init__(NODE_NAME, **kwargs)
+            reason = self._declare_parameters()
+            if reason is None:
+                try:
+                    self.config = config_from_params(self._alignment_values())
+                except ValueError as e:
+                    reason = str(e)
+            if reason is not None:
+                self.get_logger().fatal(f"cannot start: {reason}")
+                self.destroy_node()
+                raise StartupError(reason)
+            self._pending = None
+            self.add_on_set_parameters_callback(self._on_set_parameters)
+            self.add_post_set_parameters_callback(self._after_set_parameters)
+
+            self.aligner = Aligner(self.config)
+            self.stamp_clock = StampClock()
+            self.resets = 0
+            self.last_reset_reason = ""
+            self.last_header = None
+            self._published_aligned = None
+            self._backward_run = 0
+            self._reset_request: str | None = None
+            self._rx_count = 0
+            self._rate_mark = (time.monotonic(), 0)
+            self._input_rate: float | None = None
+            self._rejected_seen = 0
+            self._warn_state: dict[str, list] = {}
+
+            qos_in = QoSProfile(history=HistoryPolicy.KEEP_LAST,
+                                depth=int(self.get_parameter("queue_size").value),
+                                reliability=qos_profile_sensor_data.reliability,
+                                durability=qos_profile_sensor_data.durability)
+            latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                                 reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.pub_imu = self.create_publisher(Imu, "imu/data", 10)
+            self.pub_aligned = self.create_publisher(Bool, "alignment/aligned", latched)
+            self.pub_euler = self.create_publisher(Vector3Stamped, "alignment/euler_deg", 10)
+            self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+            self.srv_reset = self.create_service(Trigger, "alignment/reset", self._on_reset)
+            self.sub = self.create_subscription(Imu, "imu/data_raw", self._on_imu, qos_in)
+            self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+            self.euler_timer = None
+            self._start_euler_timer(float(self.get_parameter("euler_rate").value))
+            # a bag loop or a restarted simulator sets ROS time back: start over
+            self._jump_handle = self.get_clock().create_jump_callback(
+                JumpThreshold(min_forward=None, min_backward=Duration(seconds=-1),
+                              on_clock_change=True),
+                post_callback=self._on_clock_jump)
+            self._publish_aligned(force=True)
+            c = self.config
+            self.get_logger().info(
+                f"aligning at latitude {c.latitude_deg:.4f} deg, model {c.model}, "
+                f"backtrack {'after %g s' % c.backtrack_time if c.backtrack else 'off'}; "
+                f"heading {'observable' if self.aligner.heading_observable else 'UNOBSERVABLE'}"
+                f" (limit std E/N/U {', '.join('%.4f' % x for x in self.aligner.limit_std_deg)}"
+                " deg)")
+
+        # -------------------------------------------------------------- parameters
+        def _declare_parameters(self) -> str | None:
+            """Declare every parameter; return the first reason a value is bad, or None."""
+            for p in PARAMS:
+                d = ParameterDescriptor(description=p.description, read_only=p.read_only)
+                if p.choices:
+                    d.additional_constraints = "one of: " + ", ".join(p.choices)
+                elif p.low is not None:
+                    d.additional_constraints = f"within [{p.low:g}, {p.high:g}]"
+                numeric = isinstance(p.default, (float, list)) and not isinstance(p.default, bool)
+                if numeric:
+                    # ints from the command line (latitude:=34) and NaN ("required") need it
+                    d.dynamic_typing = True
+                    if p.low is not None and math.isfinite(p.default):
+                        d.floating_point_range = [FloatingPointRange(
+                            from_value=float(p.low), to_value=float(p.high), step=0.0)]
+                try:
+                    value = self.declare_parameter(p.name, p.default, d).value
+                except InvalidParameterValueException:
+                    # out of the descriptor range: declare without it, check_param words it
+                    d.floating_point_range = []
+                    value = self.declare_parameter(p.name, p.default, d).value
+                except InvalidParameterTypeException as e:
+                    return str(e.args[0]).removesuffix(f": {p.name}")
+                reason = check_param(p.name, _plain(value))
+                if reason:
+                    if p.name == "latitude" and not isinstance(value, str) and value is not None \
+                            and not math.isfinite(float(value)):
+                        reason += " (give the IMU's geodetic latitude in deg: -p latitude:=<deg>)"
+                    return reason
+            for name, (default, text, low, high, ro) in NODE_PARAMS.items():
+                d = ParameterDescriptor(description=text, read_only=ro)
+                if isinstance(default, int):
+                    d.integer_range = [IntegerRange(from_value=low, to_value=high, step=1)]
+                else:
+                    d.dynamic_typing = True
+                    d.floating_point_range = [FloatingPointRange(
+                        from_value=low, to_value=high, step=0.0)]
+                try:
+                    value = self.declare_parameter(name, default, d).value
+                except InvalidParameterValueException:
+                    d.floating_point_range, d.integer_range = [], []
+                    value = self.declare_parameter(name, default, d).value
+                except InvalidParameterTypeException as e:
+                    return str(e.args[0]).removesuffix(f": {name}")
+                reason = self._check_node_param(name, value)
+                if reason:
+                    return reason
+            return None
+
+        @staticmethod
+        def _check_node_param(name, value) -> str | None:
+            _, _, low, high, _ = NODE_PARAMS[name]
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                return f"{name} must be a number"
+            if not (math.isfinite(value) and low <= value <= high):
+                return f"{name} must be within [{low:g}, {high:g}], got {value!r}"
+            return None
+
+        def _alignment_values(self) -> dict:
+            return {p.name: _plain(self.get_parameter(p.name).value) for p in PARAMS}
+
+        def _on_set_parameters(self, params) -> SetParametersResult:
+            """Validate runtime changes; the new AlignConfig is applied after the set."""
+            values = self._alignment_values()
+            for p in params:
+                if p.name in NODE_PARAMS:
+                    reason = self._check_node_param(p.name, p.value)
+                elif p.name in values:
+                    reason = check_param(p.name, _plain(p.value))
+                    values[p.name] = _plain(p.value)
+                else:
+                    continue   # not ours (use_sim_time ...)
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
+            try:
+                self._pending = config_from_params(values)
+            except ValueError as e:
+                return SetParametersResult(successful=False, reason=str(e))
+            return SetParametersResult(successful=True)
+
+        def _after_set_parameters(self, params):
+            """Apply accepted changes to the live Aligner: thresholds, no restart."""
+            names = {p.name for p in params}
+            if "euler_rate" in names:
+                self._start_euler_timer(float(self.get_parameter("euler_rate").value))
+            if self._pending is not None and names & {p.name for p in PARAMS}:
+                # only non-read-only (non-structural) fields can differ: swap the config,
+                # keep the filter state and the aligned flag
+                self.config = self._pending
+                self.aligner.config = self.config
+                self.aligner.filter.config = self.config
+                self.get_logger().info("parameters changed: " + ", ".join(
+                    f"{p.name}={p.value}" for p in params))
+            self._pending = None
+
+        def _start_euler_timer(self, rate_hz: float):
+            if self.euler_timer is not None:
+                self.destroy_timer(self.euler_timer)
+            self.euler_timer = self.create_timer(1.0 / rate_hz, self._publish_euler)
+
+        # -------------------------------------------------------------- data path
+        def _on_imu(self, msg):
+            """stamp -> Aligner.update -> publish."""
+            self._rx_count += 1
+            if self._reset_request:
+                self._restart(self._reset_request)
+            al = self.aligner
+            t, w, f = imu_sample(msg, self.stamp_clock)
+            if self._time_went_back(t):
+                self._restart(f"input stamps jumped back by {al.t_last - t:.3f} s")
+            n_rej = sum(al.rejected.values())
+            al.update(t, w, f)
+            if sum(al.rejected.values()) == n_rej:
+                self.last_header = msg.header
+                out = imu_output(al)
+                q = msg.orientation
+                q.x, q.y, q.z, q.w = out.orientation_xyzw
+                msg.orientation_covariance = out.orientation_covariance
+                self.pub_imu.publish(msg)
+            else:
+                self._warn_rejected(al.last_reject)
+            if al.aligned != self._published_aligned:
+                self._publish_aligned()
+
+        def _time_went_back(self, t: float) -> bool:
+            """True once stamps have been far behind the last accepted one a few times."""
+            last = self.aligner.t_last
+            if last is None or not math.isfinite(t) or t >= last - self.config.max_gap:
+                self._backward_run = 0
+                return False
+            self._backward_run += 1
+            return self._backward_run >= BACKWARD_JUMP_CONFIRM
+
+        def _warn_rejected(self, reason: str):
+            now = time.monotonic()
+            st = self._warn_state.setdefault(reason, [-math.inf, 0])
+            st[1] += 1
+            if now - st[0] >= WARN_PERIOD:
+                self.get_logger().warning(
+                    f"rejected {st[1]} sample(s): {reason} ({REASON_TEXT.get(reason, '?')})")
+                st[0], st[1] = now, 0
+
+        def _restart(self, why: str):
+            self._reset_request = None
+            self._backward_run = 0
+            self.aligner.reset()
+            self.resets += 1
+            self.last_reset_reason = why
+            self.get_logger().warning(f"alignment restarted: {why}")
+            self._publish_aligned()
+
+        def _on_clock_jump(self, jump):
+            # runs inside the clock update: only flag it, the next sample restarts
+            if jump.delta.nanoseconds < 0:
+                self._reset_request = (f"ROS time jumped back by "
+                                       f"{-jump.delta.nanoseconds * 1e-9:.3f} s")
+
+        def _on_reset(self, request, response):
+            elapsed = self.aligner.elapsed
+            self._restart("reset service called")
+            response.success = True
+            response.message = f"alignment restarted (previous run: {elapsed:.1f} s of data)"
+            return response
+
+        # -------------------------------------------------------------- outputs
+        def _publish_aligned(self, force: bool = False):
+            value = bool(self.aligner.aligned)
+            if force or value != self._published_aligned:
+                self.pub_aligned.publish(Bool(data=value))
+                if value and self.aligner.time_to_aligned is not None:
+                    std = self.aligner.std_enu_deg
+                    self.get_logger().info(
+                        f"ALIGNED after {self.aligner.time_to_aligned:.1f} s of data: "
+                        f"rpy {', '.join('%.4f' % x for x in euler_deg(self.aligner))} deg, "
+                        f"std E/N/U {std[0]:.4f}, {std[1]:.4f}, {std[2]:.4f} deg")
+                self._published_aligned = value
+
+        def _publish_euler(self):
+            if self.last_header is None or self.aligner.t_last is None:
+                return
+            m = Vector3Stamped()
+            m.header = self.last_header
+            m.vector.x, m.vector.y, m.vector.z = euler_deg(self.aligner)
+            self.pub_euler.publish(m)
+
+        def _publish_diagnostics(self):
+            now = time.monotonic()
+            t0, n0 = self._rate_mark
+            if now > t0:
+                self._input_rate = (self._rx_count - n0) / (now - t0)
+            self._rate_mark = (now, self._rx_count)
+            al = self.aligner
+            level, message, values = diagnostic_status(al, self._input_rate)
+            rejected = sum(al.rejected.values())
+            recent = rejected - self._rejected_seen if rejected >= self._rejected_seen else rejected
+            self._rejected_seen = rejected
+            if recent and level < WARN:
+                level = WARN
+                message += f"; {recent} sample(s) rejected ({al.last_reject})"
+            values = values + [
+                ("data_rate_hz", "" if al.nominal_dt is None else f"{1.0 / al.nominal_dt:.2f}"),
+                ("resets", str(self.resets)),
+                ("last_reset_reason", self.last_reset_reason),
+            ]
+            st = DiagnosticStatus(
+                level=bytes([level]), name=f"{self.get_name()}: alignment", message=message,
+                hardware_id=self.last_header.frame_id if self.last_header else "",
+                values=[KeyValue(key=k, value=v) for k, v in values])
+            arr = DiagnosticArray(status=[st])
+            arr.header.stamp = self.get_clock().now().to_msg()
+            self.pub_diag.publish(arr)
+
+    return AlignNode
+
+
+def quiet_sigint() -> None:
+    """Let Ctrl-C end ``rclpy.spin`` through rclpy's own handler only.
+
+    rclpy's SIGINT handler shuts the context down (spin then raises
+    ExternalShutdownException) and chains to Python's handler, whose KeyboardInterrupt can
+    land anywhere, e.g. half-way through creating an executor Task (rclpy then prints
+    "Exception ignored in Task.__del__" at exit). A no-op Python handler, installed before
+    rclpy.init, keeps the clean path only.
+    """
+    signal.signal(signal.SIGINT, lambda signum, frame: None)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``align_node`` / ``python -m sins_align.align_node``; returns exit code."""
+    parser = build_arg_parser(
+        "align_node",
+        "SINS self-alignment node: roll, pitch and true heading of an IMU on a quasi-static "
+        "base, from gravity and Earth rate.\nSubscribes imu/data_raw; publishes imu/data, "
+        "alignment/aligned (latched), alignment/euler_deg, /diagnostics; service "
+        "alignment/reset.",
+        _param_help() + "\n\nexample:\n  ros2 run sins_align align_node --ros-args "
+        "-p latitude:=34.0 --params-file align.yaml")
+    parse_cli(parser, args)
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    quiet_sigint()
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = _make_node_class()()
+        rclpy.spin(node)
+    except StartupError:
+        return 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,214 @@
+#!/usr/bin/env python3
+"""How fast can align_node go? A script that prints figures (not a test).
+
+For each IMU rate (100, 400, 1000, 2000 Hz) a publisher process sends ~10 s of simulated
+sensor_msgs/Imu at that rate (wall clock) to a fresh ``python -m sins_align.align_node``;
+this script counts the ``imu/data`` messages that come back and reads the node's CPU time
+from ``/proc/<pid>/stat`` (utime + stime). A rate is *sustained* when every input came back.
+
+Two phases of the filter are measured:
+- coarse: backtrack_time 60 s, so the whole run is the coarse pass (a Kalman update at
+  every sample: the most expensive steady state);
+- fine: backtrack_time 5 s, so the run contains the backtrack (the buffer re-processed in
+  one go, a pause the subscription queue must absorb) and then the fine pass.
+
+Usage: ``.venv/bin/python test/benchmarks/bench_node.py [--rates 100 400] [--duration 10]``
+(``make bench`` runs it). Uses its own ROS_DOMAIN_ID (random) on localhost.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import queue
+import random
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+NS = "/bench"
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_seconds(pid: int) -> float:
+    """utime + stime of a process, s (fields 14 and 15 of /proc/<pid>/stat)."""
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    fields = stat[stat.rindex(")") + 2:].split()   # after "pid (comm) "
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+# ------------------------------------------------------------------------------ publisher
+def publisher(rate: float, duration: float) -> None:
+    """Child process: publish ``duration`` s of IMU samples at ``rate`` Hz of wall time."""
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu
+
+    from sins_align.sim import simulate
+
+    sim = simulate(duration, rate=rate, seed=1)
+    t0 = 1_700_000_000
+    msgs = []
+    for k in range(len(sim.t)):
+        m = Imu()
+        m.header.frame_id = "imu_link"
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(
+            t0 * 1_000_000_000 + int(round(sim.t[k] * 1e9)), 1_000_000_000)
+        m.orientation_covariance[0] = -1.0
+        w, f = sim.gyro[k], sim.accel[k]
+        m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = map(float, w)
+        m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = map(float, f)
+        msgs.append(m)
+    rclpy.init(args=[])
+    node = rclpy.create_node("bench_publisher")
+    pub = node.create_publisher(Imu, f"{NS}/imu/data_raw", qos_profile_sensor_data)
+    deadline = time.monotonic() + 30.0
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    print(json.dumps({"ready": True}), flush=True)
+    sys.stdin.readline()                       # "go" from the parent
+    start = time.monotonic()
+    sent = 0
+    while sent < len(msgs):
+        due = min(len(msgs), int((time.monotonic() - start) * rate) + 1)
+        while sent < due:
+            pub.publish(msgs[sent])
+            sent += 1
+        time.sleep(0.0005)
+    wall = time.monotonic() - start
+    print(json.dumps({"sent": sent, "wall": wall}), flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+# ------------------------------------------------------------------------------ one trial
+def trial(rate: float, duration: float, backtrack: float, env: dict) -> dict:
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu
+    from std_msgs.msg import Bool
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, args=[])
+    probe = rclpy.create_node("bench_probe", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(probe)
+    got = {"out": 0, "aligned": None, "diag": None}
+
+    def on_out(_m):
+        got["out"] += 1
+
+    def on_diag(arr):
+        for st in arr.status:
+            if st.name == "bench_align: alignment":
+                got["diag"] = {kv.key: kv.value for kv in st.values}
+
+    probe.create_subscription(Imu, f"{NS}/imu/data", on_out,
+                              QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE))
+    probe.create_subscription(
+        Bool, f"{NS}/alignment/aligned", lambda m: got.__setitem__("aligned", m.data),
+        QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                   durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
+
+    def spin_for(seconds: float):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.01)
+
+    node = subprocess.Popen(
+        [sys.executable, "-m", "sins_align.align_node", "--ros-args", "-r", f"__ns:={NS}",
+         "-r", "__node:=bench_align", "-p", "latitude:=34.0", "-p", f"rate:={rate}",
+         "-p", f"backtrack_time:={backtrack}"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    pub = subprocess.Popen([sys.executable, __file__, "--publish", str(rate), str(duration)],
+                           env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        end = time.monotonic() + 30
+        while got["aligned"] is None and time.monotonic() < end:
+            spin_for(0.1)
+        while probe.count_publishers(f"{NS}/imu/data") == 0 and time.monotonic() < end:
+            spin_for(0.1)
+        assert json.loads(pub.stdout.readline())["ready"]
+        spin_for(1.0)
+        cpu0, t0 = cpu_seconds(node.pid), time.monotonic()
+        pub.stdin.write("go\n")
+        pub.stdin.flush()
+        # spin while the publisher runs (it prints its summary when done)
+        lines: queue.Queue = queue.Queue()
+        threading.Thread(target=lambda: lines.put(pub.stdout.readline()), daemon=True).start()
+        while lines.empty():
+            spin_for(0.05)
+        info = json.loads(lines.get())
+        # drain: wait until the output stops growing (the node may be behind)
+        still = 0.0
+        while still < 1.0 and time.monotonic() - t0 < duration * 6 + 30:
+            n = got["out"]
+            spin_for(0.2)
+            still = still + 0.2 if got["out"] == n else 0.0
+        t1 = time.monotonic() - still
+        cpu = cpu_seconds(node.pid) - cpu0
+        spin_for(1.2)                            # one more diagnostics message
+        d = got["diag"] or {}
+        return {"rate": rate, "sent": info["sent"], "out": got["out"],
+                "used": int(d.get("samples_used", 0)),
+                "gaps": int(d.get("event_gap", 0)),
+                "pub_rate": info["sent"] / info["wall"],
+                "lag": max(0.0, (t1 - t0) - info["wall"]),
+                "cpu": 100.0 * cpu / (t1 - t0), "stage": d.get("stage", "?")}
+    finally:
+        for p in (pub, node):
+            if p.poll() is None:
+                p.send_signal(2)
+                try:
+                    p.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        probe.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rates", type=float, nargs="+", default=[100, 400, 1000, 2000])
+    ap.add_argument("--duration", type=float, default=10.0, help="s of publishing per trial")
+    ap.add_argument("--publish", type=float, nargs=2, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.publish:
+        publisher(*a.publish)
+        return 0
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.setdefault("ROS_DOMAIN_ID", str(random.randint(102, 232)))
+    os.environ.update(env)
+    print(f"align_node throughput, {a.duration:g} s per trial, {os.cpu_count()} CPUs, "
+          f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}")
+    print(f"{'phase':<7}{'rate Hz':>8}{'sent':>7}{'out':>7}{'lost':>6}{'pub Hz':>8}"
+          f"{'lag s':>7}{'CPU %':>7}  result")
+    best = {}
+    for phase, backtrack in (("coarse", 60.0), ("fine", 5.0)):
+        for rate in a.rates:
+            r = trial(rate, a.duration, backtrack, env)
+            lost = r["sent"] - r["out"]
+            ok = lost == 0 and r["lag"] < 1.0
+            if ok:
+                best[phase] = max(best.get(phase, 0), rate)
+            verdict = "sustained" if ok else (
+                f"NOT sustained ({lost} lost)" if lost else "NOT sustained (falls behind)")
+            print(f"{phase:<7}{rate:>8g}{r['sent']:>7}{r['out']:>7}{lost:>6}"
+                  f"{r['pub_rate']:>8.0f}{r['lag']:>7.1f}{r['cpu']:>7.0f}  {verdict}",
+                  flush=True)
+    for phase in ("coarse", "fine"):
+        print(f"highest sustained rate, {phase} pass: "
+              f"{best.get(phase, 0):g} Hz" if phase in best else
+              f"highest sustained rate, {phase} pass: none of {a.rates}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,536 @@
+"""align_node and imu_sim_node over real DDS.
+
+The nodes run as child processes (``python -m sins_align.<node>``, which also proves
+``main()``); the test talks to them through an rclpy probe node in this process. Data time
+runs 10x faster than wall time (50 Hz IMU, speed 10) and the backtrack starts after 20 s of
+data, so an alignment takes a few wall seconds.
+
+Each test names what it proves. Bounds on the attitude error come from what the node
+publishes itself (its covariance and limit accuracy), never from hand-picked tolerances.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+from rclpy.qos import (DurabilityPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_sensor_data)
+from sensor_msgs.msg import Imu
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from ros_helpers import (LATCHED, NodeProcess, Probe, diag_values, latest_diag, stamp_ns,
+                         wait_until)
+from sins_align import align_node
+from sins_align.outputs import covariance_is_valid
+from sins_align.params import PARAMS, config_from_params, load_params_yaml
+from sins_align.rotation import attitude_error, dcm_from_quat, rpy_from_dcm
+from sins_align.sim import SwayProfile, simulate
+from sins_align.specs import DEG, grade_specs, limit_std
+
+RATE = 50.0          # Hz, data time
+SPEED = 10.0         # data s per wall s
+BACKTRACK = 20.0     # s of data
+# names carry the pid: another test run that lands on the same ROS domain cannot interfere
+RUN = os.getpid()
+NS = f"/nt_{RUN}"
+NODE = f"align_a_{RUN}"
+STATUS = f"{NODE}: alignment"
+TRUE_RPY = (2.0, -1.0, 30.0)
+RELIABLE_DEEP = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.VOLATILE)
+SENSOR_DEEP = QoSProfile(depth=5000, reliability=qos_profile_sensor_data.reliability,
+                         durability=qos_profile_sensor_data.durability)
+ALIGN_TIMEOUT = 90.0   # wall s; the alignment needs ~60 s of data = ~6 s wall
+
+
+@pytest.fixture(scope="module")
+def probe():
+    p = Probe("test_nodes_probe")
+    yield p
+    p.close()
+
+
+def _diag_fail(pair) -> str:
+    return f"latest diagnostics: {latest_diag(pair.diags, STATUS)}\n{pair.node.output()}"
+
+
+@pytest.fixture(scope="module")
+def pair(probe, tmp_path_factory):
+    """align_node (large initial error) fed by imu_sim_node; the probe listens."""
+    logs = tmp_path_factory.mktemp("nodes")
+    aligned = probe.subscribe(Bool, f"{NS}/alignment/aligned", LATCHED)
+    diags = probe.subscribe(DiagnosticArray, "/diagnostics", 50, maxlen=200)
+    truth = probe.subscribe(QuaternionStamped, f"{NS}/imu_sim/truth", RELIABLE_DEEP, maxlen=3000)
+    node = NodeProcess("align_node", [
+        "-r", f"__ns:={NS}", "-r", f"__node:={NODE}", "-p", "latitude:=34.0",
+        "-p", f"backtrack_time:={BACKTRACK}", "-p", "initial_rpy:=[89.0, 89.0, 179.0]"],
+        logs, NODE)
+    sim = None
+    try:
+        wait_until(lambda: len(aligned) or not node.alive(), 30.0, "align_node to come up")
+        assert node.alive(), node.output()
+        sim = NodeProcess("imu_sim_node", [
+            "-r", f"__ns:={NS}", "-r", "__node:=sim_a", "-p", f"rate:={RATE}",
+            "-p", f"speed:={SPEED}", "-p", f"rpy:=[{TRUE_RPY[0]}, {TRUE_RPY[1]}, {TRUE_RPY[2]}]",
+            "-p", "seed:=3", "-p", "wait_for_subscribers:=true"], logs, "sim_a")
+        yield SimpleNamespace(node=node, sim=sim, aligned=aligned, diags=diags, truth=truth)
+    finally:
+        for p in (sim, node):
+            if p is not None:
+                p.stop()
+
+
+def test_aligned_flag_starts_false_and_latches_true(pair):
+    """alignment/aligned is false at start, turns true once, and stays true."""
+    first = wait_until(lambda: pair.aligned.msgs, 5.0, "the initial aligned message")
+    assert first[0].data is False, "the first aligned message must be false"
+    try:
+        wait_until(lambda: any(m.data for m in pair.aligned.msgs), ALIGN_TIMEOUT, "aligned=true")
+    except AssertionError as e:
+        raise AssertionError(f"{e}\n{_diag_fail(pair)}") from None
+    time.sleep(2.0)
+    values = [m.data for m in pair.aligned.msgs]
+    k = values.index(True)
+    assert all(values[k:]), f"aligned flag dropped after latching: {values}"
+    assert values[:k] == [False] * k, values   # published on change only
+    d = wait_until(lambda: latest_diag(pair.diags, STATUS), 5.0, "diagnostics")
+    assert d["state"] == "aligned" and d["aligned"] == "true", d
+
+
+def test_late_transient_local_subscriber_gets_the_latched_flag(pair, probe):
+    """A subscriber that joins after the change still receives aligned=true (TRANSIENT_LOCAL);
+    a VOLATILE one does not, so the flag is latched, not re-published periodically."""
+    wait_until(lambda: any(m.data for m in pair.aligned.msgs), ALIGN_TIMEOUT, "aligned=true")
+    late = probe.subscribe(Bool, f"{NS}/alignment/aligned", LATCHED)
+    volatile = probe.subscribe(Bool, f"{NS}/alignment/aligned",
+                               QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                          durability=DurabilityPolicy.VOLATILE))
+    try:
+        wait_until(lambda: len(late), 10.0, "the latched aligned message")
+        assert [m.data for m in late.msgs] == [True]
+        time.sleep(1.0)
+        assert len(volatile) == 0, "aligned was re-published although it did not change"
+    finally:
+        probe.unsubscribe(late)
+        probe.unsubscribe(volatile)
+
+
+def _window(probe, seconds: float, extra=()):
+    """Collect imu/data, imu/data_raw (and ``extra`` topics) for ``seconds`` wall seconds."""
+    out = probe.subscribe(Imu, f"{NS}/imu/data", RELIABLE_DEEP)
+    raw = probe.subscribe(Imu, f"{NS}/imu/data_raw", SENSOR_DEEP)
+    more = [probe.subscribe(t, f"{NS}/{name}", 50) for t, name in extra]
+    time.sleep(seconds)
+    for c in (out, raw, *more):
+        probe.unsubscribe(c)
+    return out.msgs, raw.msgs, [c.msgs for c in more]
+
+
+def test_imu_data_orientation_matches_truth_within_published_covariance(pair, probe):
+    """imu/data = the input sample (same header and data) plus an orientation whose error
+    against imu_sim/truth stays inside 4 sigma of the published covariance, and that
+    covariance is as tight as the aligned criterion (limit accuracy) promises."""
+    wait_until(lambda: any(m.data for m in pair.aligned.msgs), ALIGN_TIMEOUT, "aligned=true")
+    out, raw, _ = _window(probe, 2.0)
+    truth = {stamp_ns(m.header.stamp): m.quaternion for m in pair.truth.msgs}
+    raw_by = {stamp_ns(m.header.stamp): m for m in raw}
+    pairs = [(m, truth[stamp_ns(m.header.stamp)]) for m in out
+             if stamp_ns(m.header.stamp) in truth]
+    assert len(pairs) >= 0.5 * RATE * SPEED, f"only {len(pairs)} imu/data samples matched truth"
+
+    d = latest_diag(pair.diags, STATUS)
+    limit = np.array([float(d[f"limit_{a}_deg"]) for a in ("east", "north", "up")]) * DEG
+    cfg = config_from_params({"latitude": 34.0})
+    bound = np.maximum(cfg.aligned_std_ratio * limit,
+                       np.array([cfg.aligned_min_level_std_deg] * 2
+                                + [cfg.aligned_min_heading_std_deg]) * DEG)
+    worst = 0.0
+    passthrough = 0
+    for m, qt in pairs:
+        q = m.orientation
+        assert abs(math.sqrt(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2) - 1.0) < 1e-9, q
+        C_est = dcm_from_quat(np.array([q.x, q.y, q.z, q.w]))
+        C_true = dcm_from_quat(np.array([qt.x, qt.y, qt.z, qt.w]))
+        phi = attitude_error(C_true, C_est)
+        assert covariance_is_valid(m.orientation_covariance), m.orientation_covariance
+        sigma = np.sqrt(np.diag(np.array(m.orientation_covariance).reshape(3, 3)))
+        assert np.all(sigma <= bound * (1 + 1e-9)), (sigma / DEG, bound / DEG)
+        worst = max(worst, float(np.max(np.abs(phi) / sigma)))
+        assert np.all(np.abs(phi) <= 4.0 * sigma), (
+            f"attitude error {phi / DEG} deg outside 4 sigma {sigma / DEG} deg")
+        r = raw_by.get(stamp_ns(m.header.stamp))
+        if r is not None:
+            passthrough += 1
+            assert m.header.frame_id == r.header.frame_id == "imu_link"
+            for f in ("angular_velocity", "linear_acceleration"):
+                a, b = getattr(m, f), getattr(r, f)
+                assert (a.x, a.y, a.z) == (b.x, b.y, b.z), f
+            assert list(m.angular_velocity_covariance) == list(r.angular_velocity_covariance)
+    assert passthrough > 0, "no imu/data_raw sample seen next to its imu/data twin"
+    print(f"{len(pairs)} samples, worst |phi|/sigma = {worst:.2f}")
+
+
+def test_euler_deg_rate_stamp_and_values(pair, probe):
+    """alignment/euler_deg comes at ~euler_rate (10 Hz), carries the latest input stamp and
+    frame, and equals the REP-103 roll/pitch/yaw of the imu/data orientation of that stamp."""
+    out, _, (euler,) = _window(probe, 3.0, extra=[(Vector3Stamped, "alignment/euler_deg")])
+    assert 15 <= len(euler) <= 45, f"{len(euler)} euler messages in 3 s at 10 Hz"
+    by_stamp = {stamp_ns(m.header.stamp): m.orientation for m in out}
+    checked = 0
+    for e in euler:
+        assert e.header.frame_id == "imu_link"
+        q = by_stamp.get(stamp_ns(e.header.stamp))
+        if q is None:
+            continue
+        rpy = rpy_from_dcm(dcm_from_quat(np.array([q.x, q.y, q.z, q.w]))) / DEG
+        assert np.allclose([e.vector.x, e.vector.y, e.vector.z], rpy, atol=1e-9), (e.vector, rpy)
+        checked += 1
+    assert checked >= len(euler) // 2, f"only {checked}/{len(euler)} euler stamps were inputs"
+
+
+def test_diagnostics_report_state_limits_counts_and_rate(pair):
+    """/diagnostics (1 Hz) carries state, per-axis std and limit (the analytic limit accuracy
+    of the configured specs), heading observability, sample counts and the input rate."""
+    wait_until(lambda: any(m.data for m in pair.aligned.msgs), ALIGN_TIMEOUT, "aligned=true")
+    n0 = sum(diag_values(a, STATUS) is not None for a in pair.diags.msgs)
+    time.sleep(3.2)
+    n = sum(diag_values(a, STATUS) is not None for a in pair.diags.msgs) - n0
+    assert 2 <= n <= 5, f"{n} diagnostics in 3.2 s (1 Hz expected)"
+    d = latest_diag(pair.diags, STATUS)
+    assert d["state"] == "aligned" and d["level"] == "0", d
+    assert d["heading_observable"] == "true" and d["stage"] == "fine"
+    lim = limit_std(34.0 * DEG, grade_specs("navigation")) / DEG
+    got = [float(d[f"limit_{a}_deg"]) for a in ("east", "north", "up")]
+    assert np.allclose(got, lim, rtol=2e-3), (got, lim)
+    assert all(float(d[f"std_{a}_deg"]) > 0 for a in ("east", "north", "up"))
+    assert int(d["samples_used"]) > BACKTRACK * RATE and d["samples_rejected"] == "0", d
+    rate = float(d["input_rate_hz"])
+    assert abs(rate - RATE * SPEED) < 0.25 * RATE * SPEED, f"input rate {rate}"
+    assert abs(float(d["data_rate_hz"]) - RATE) < 0.01 * RATE
+
+
+def test_runtime_parameter_changes_are_checked_and_applied_live(pair, probe):
+    """Bad runtime values are refused with a reason; accepted thresholds act on the running
+    alignment without restarting it (disturbance_nis below the live NIS withdraws aligned,
+    restoring it gives aligned back)."""
+    fqn = f"{NS}/{NODE}"
+    wait_until(lambda: any(m.data for m in pair.aligned.msgs), ALIGN_TIMEOUT, "aligned=true")
+    for values, words in [({"max_angular_rate": 1000.0}, "max_angular_rate"),
+                          ({"disturbance_nis": "high"}, "disturbance_nis must be a number"),
+                          ({"aligned_min_level_std": -1.0}, "aligned_min_level_std"),
+                          ({"model": "se3"}, "read-only"),
+                          ({"euler_rate": 0.0}, "euler_rate")]:
+        (res,) = probe.set_parameters(fqn, **values)
+        assert not res.successful, f"{values} was accepted"
+        assert words in res.reason, (values, res.reason)
+
+    before = latest_diag(pair.diags, STATUS)
+    (res,) = probe.set_parameters(fqn, aligned_std_ratio=2.0)
+    assert res.successful, res.reason
+    n_flags = len(pair.aligned)
+    (res,) = probe.set_parameters(fqn, disturbance_nis=0.1)
+    assert res.successful, res.reason
+    try:
+        wait_until(lambda: [m.data for m in pair.aligned.msgs[n_flags:]] == [False], 10.0,
+                   "aligned=false after disturbance_nis=0.1")
+        wait_until(lambda: latest_diag(pair.diags, STATUS)["state"] == "disturbed", 5.0,
+                   "state disturbed")
+    finally:
+        (res,) = probe.set_parameters(fqn, disturbance_nis=3.0)
+        assert res.successful, res.reason
+    wait_until(lambda: pair.aligned.msgs[-1].data, 10.0, "aligned=true again")
+    after = wait_until(lambda: (lambda d: d if d["state"] == "aligned" else None)(
+        latest_diag(pair.diags, STATUS)), 5.0, "state aligned")
+    # same run: no restart, time and samples kept growing
+    assert after["resets"] == before["resets"] == "0"
+    assert float(after["elapsed_s"]) > float(before["elapsed_s"])
+    assert int(after["samples_used"]) > int(before["samples_used"])
+
+
+def test_reset_service_restarts_the_alignment(pair, probe):
+    """alignment/reset: aligned goes false, diagnostics say aligning, then aligned again."""
+    wait_until(lambda: pair.aligned.msgs and pair.aligned.msgs[-1].data, ALIGN_TIMEOUT,
+               "aligned=true")
+    n = len(pair.aligned)
+    resp = probe.call(Trigger, f"{NS}/alignment/reset", Trigger.Request())
+    assert resp.success, resp.message
+    wait_until(lambda: [m.data for m in pair.aligned.msgs[n:]][:1] == [False], 10.0,
+               "aligned=false after reset")
+    d = wait_until(lambda: (lambda d: d if d["resets"] == "1" else None)(
+        latest_diag(pair.diags, STATUS)), 5.0, "diagnostics after the reset")
+    assert d["state"] == "aligning" and d["aligned"] == "false", d
+    assert "reset service" in d["last_reset_reason"]
+    assert float(d["elapsed_s"]) < BACKTRACK, d
+    try:
+        wait_until(lambda: pair.aligned.msgs[-1].data, ALIGN_TIMEOUT, "aligned=true again")
+    except AssertionError as e:
+        raise AssertionError(f"{e}\n{_diag_fail(pair)}") from None
+
+
+def test_nodes_exit_cleanly_on_sigint(pair):
+    """Ctrl-C ends both nodes with status 0 and no traceback (main's shutdown path)."""
+    for p in (pair.sim, pair.node):
+        assert p.alive(), p.output()
+        assert p.stop() == 0, p.output()
+        assert "Traceback" not in p.stderr(), p.output()
+
+
+# ---------------------------------------------------------------------------- startup errors
+@pytest.mark.parametrize("args, reason", [
+    ([], "latitude is required"),
+    (["-p", "latitude:=95.0"], "latitude must be within [-90, 90]"),
+    (["-p", "latitude:=34.0", "-p", "model:=kalman"], "model must be one of"),
+    (["-p", "latitude:=34.0", "-p", "backtrack_time:=1.0"], "backtrack_time must be within"),
+], ids=["missing-latitude", "latitude-out-of-range", "bad-model", "backtrack-too-short"])
+def test_bad_startup_parameters_exit_1_with_one_line(args, reason, tmp_path):
+    """A bad or missing parameter: exit status 1 and one log line with the reason."""
+    p = NodeProcess("align_node", ["-r", "__node:=align_bad_param", *args], tmp_path)
+    try:
+        rc = p.wait(timeout=30)
+    finally:
+        p.stop()
+    err = [ln for ln in p.stderr().splitlines() if ln.strip()]
+    assert rc == 1, p.output()
+    assert len(err) == 1 and reason in err[0], p.output()
+    assert "Traceback" not in p.output()
+
+
+def test_align_yaml_lists_every_parameter_with_its_default():
+    """config/align.yaml sets every parameter (node-only ones too) to its default, except the
+    example latitude; the values make a valid AlignConfig."""
+    from pathlib import Path
+
+    path = Path(align_node.__file__).parent / "config" / "align.yaml"
+    values = load_params_yaml(path)
+    assert set(values) == {p.name for p in PARAMS} | set(align_node.NODE_PARAMS)
+    for p in PARAMS:
+        if p.name != "latitude":
+            assert values[p.name] == p.default, (p.name, values[p.name], p.default)
+    for name, spec in align_node.NODE_PARAMS.items():
+        assert values[name] == spec[0], name
+    assert math.isfinite(values["latitude"])
+    config_from_params({k: v for k, v in values.items() if k not in align_node.NODE_PARAMS})
+
+
+# ---------------------------------------------------------------------------- bad input
+BAD_NS = f"/bad_{RUN}"
+BAD_NODE = f"align_bad_{RUN}"
+BAD_STATUS = f"{BAD_NODE}: alignment"
+BAD_EACH = 5          # samples of each defect
+
+
+@pytest.fixture(scope="module")
+def bad(probe, tmp_path_factory):
+    """An align_node fed by the test itself (nominal 50 Hz, 5 s units-check window)."""
+    logs = tmp_path_factory.mktemp("bad")
+    diags = probe.subscribe(DiagnosticArray, "/diagnostics", 50, maxlen=200)
+    out = probe.subscribe(Imu, f"{BAD_NS}/imu/data", RELIABLE_DEEP)
+    node = NodeProcess("align_node", [
+        "-r", f"__ns:={BAD_NS}", "-r", f"__node:={BAD_NODE}", "-p", "latitude:=34.0",
+        "-p", f"rate:={RATE}", "-p", "units_check_window:=5.0"], logs, BAD_NODE)
+    pub = probe.node.create_publisher(Imu, f"{BAD_NS}/imu/data_raw", qos_profile_sensor_data)
+    try:
+        wait_until(lambda: pub.get_subscription_count() > 0 or not node.alive(), 30.0,
+                   "align_node to subscribe")
+        assert node.alive(), node.output()
+        time.sleep(0.5)
+        yield SimpleNamespace(node=node, pub=pub, diags=diags, out=out, sent=0)
+    finally:
+        node.stop()
+        probe.node.destroy_publisher(pub)
+
+
+def _imu(t: float, w, f, frame: str = "imu_link") -> Imu:
+    m = Imu()
+    ns = int(round(t * 1e9))
+    m.header.stamp.sec, m.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+    m.header.frame_id = frame
+    m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = map(float, w)
+    m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = map(float, f)
+    return m
+
+
+def _send(bad, msgs, per_burst: int = 10, pause: float = 0.02):
+    for i in range(0, len(msgs), per_burst):
+        for m in msgs[i:i + per_burst]:
+            bad.pub.publish(m)
+        time.sleep(pause)
+    bad.sent += len(msgs)
+
+
+def _accounted(bad):
+    """Diagnostics once every sent sample is used, rejected or the first one."""
+    def done():
+        d = latest_diag(bad.diags, BAD_STATUS)
+        if d and int(d["samples_used"]) + int(d["samples_rejected"]) + 1 == bad.sent:
+            return d
+        return None
+    try:
+        return wait_until(done, 15.0, f"diagnostics accounting for {bad.sent} samples")
+    except AssertionError as e:
+        raise AssertionError(f"{e}: {latest_diag(bad.diags, BAD_STATUS)}\n"
+                             f"{bad.node.output()}") from None
+
+
+T0 = 1_000_000.0      # s, stamps of the hand-made stream
+
+
+def test_bad_samples_are_counted_by_reason_and_the_node_keeps_going(bad):
+    """NaNs, duplicate and backward stamps, gravity-removed accelerations and deg/s gyro rates
+    are rejected and counted by reason (never republished, warned about by name); the node
+    stays up, reports a fault for the deg/s rates, and resumes on good data."""
+    dt = 1.0 / RATE
+    a = simulate(10.0, rate=RATE, seed=11)
+    msgs, defects = [], {"nonfinite": 0, "duplicate_stamp": 0, "stamp_backwards": 0,
+                         "gravity_removed": 0}
+    for k in range(len(a.t)):
+        t, w, f = T0 + a.t[k], a.gyro[k], a.accel[k]
+        msgs.append(_imu(t, w, f))
+        slot = k % 20
+        if k < 20 * BAD_EACH and 0 < k:
+            if slot == 3:
+                msgs.append(_imu(t + dt / 2, [math.nan, 0.0, 0.0], f))
+                defects["nonfinite"] += 1
+            elif slot == 7:
+                msgs.append(_imu(t, w, f))
+                defects["duplicate_stamp"] += 1
+            elif slot == 11:
+                msgs.append(_imu(t - 0.5, w, f))
+                defects["stamp_backwards"] += 1
+            elif slot == 15:
+                msgs.append(_imu(t + dt / 2, w, f - np.array([0.0, 0.0, 9.79])))
+                defects["gravity_removed"] += 1
+    assert all(v == BAD_EACH for v in defects.values()), defects
+    # deg/s rates: a base swaying 2 deg at 0.05 Hz, gyro numbers 57.3x too large
+    sway = SwayProfile(ang_amp=(2.0 * DEG, 2.0 * DEG, 0.0), ang_freq=(0.05, 0.05, 0.05))
+    b = simulate(12.0, rate=RATE, seed=12, sway=sway)
+    t_b = T0 + a.t[-1]
+    msgs += [_imu(t_b + b.t[k], b.gyro[k] / DEG, b.accel[k]) for k in range(len(b.t))]
+    _send(bad, msgs)
+    d = _accounted(bad)
+    for reason, n in defects.items():
+        assert d.get(f"rejected_{reason}") == str(n), (reason, d)
+    assert int(d.get("rejected_rates_look_like_deg_per_s", "0")) > 0, d
+    assert d["state"] == "fault" and d["level"] == "2", d
+    assert bad.node.alive(), bad.node.output()
+    # never republished: one imu/data per used sample plus the first (time anchor)
+    wait_until(lambda: bad.out.count == int(d["samples_used"]) + 1, 5.0,
+               f"imu/data count {bad.out.count} == used + 1 ({d['samples_used']} + 1)")
+    err = bad.node.stderr()
+    for reason in (*defects, "rates_look_like_deg_per_s"):
+        assert f"sample(s): {reason}" in err, f"no warning naming {reason}:\n{err}"
+
+    # good data again: the fault clears, the alignment carries on
+    c = simulate(15.0, rate=RATE, seed=13)
+    t_c = t_b + b.t[-1]
+    used_before = int(d["samples_used"])
+    _send(bad, [_imu(t_c + c.t[k], c.gyro[k], c.accel[k]) for k in range(len(c.t))])
+    d = _accounted(bad)
+    assert d["state"] == "aligning", d
+    assert int(d["samples_used"]) > used_before + 5 * RATE, d
+    assert bad.node.alive()
+    bad.t_end = t_c + c.t[-1]
+
+
+def test_stamps_jumping_back_restart_the_alignment(bad):
+    """Stamps far behind the last one (a bag loop) restart the alignment after a few samples;
+    a single late sample would only be rejected."""
+    t_end = getattr(bad, "t_end", None)
+    if t_end is None:
+        pytest.fail("needs the stream of the previous test")
+    a = simulate(1.0, rate=RATE, seed=14)
+    t0 = t_end - 100.0
+    _send(bad, [_imu(t0 + a.t[k], a.gyro[k], a.accel[k]) for k in range(len(a.t))])
+
+    def restarted():
+        d = latest_diag(bad.diags, BAD_STATUS)
+        return d if d and d["resets"] == "1" and int(d["samples_used"]) > 0 else None
+    d = wait_until(restarted, 10.0, "a restart after the stamps jumped back")
+    n_confirm = align_node.BACKWARD_JUMP_CONFIRM
+    back = t_end - (t0 + a.t[n_confirm - 1])
+    assert f"input stamps jumped back by {back:.3f} s" in d["last_reset_reason"], d
+    # the confirming sample starts the new run; the ones before it were plain rejections
+    assert int(d["samples_used"]) == len(a.t) - n_confirm, d
+    assert d["state"] == "aligning" and d["samples_rejected"] == "0", d
+
+
+def test_ros_time_jumping_back_restarts_the_alignment(probe):
+    """With use_sim_time, ROS time set back (a bag loop with --clock) restarts the
+    alignment at the next sample. In-process node, real DDS for the sample."""
+    from rclpy.parameter import Parameter
+    from rclpy.time import Time
+
+    node = align_node._make_node_class()(
+        context=probe.context, namespace=f"/jump_{RUN}",
+        parameter_overrides=[Parameter("latitude", value=34.0),
+                             Parameter("use_sim_time", value=True)])
+    probe.executor.add_node(node)
+    pub = probe.node.create_publisher(Imu, f"/jump_{RUN}/imu/data_raw", qos_profile_sensor_data)
+    try:
+        wait_until(lambda: pub.get_subscription_count() > 0, 10.0, "subscription")
+        s = simulate(1.0, rate=RATE, seed=15)
+        clock = node.get_clock()
+        clock.set_ros_time_override(Time(seconds=1000))
+        for k in range(10):
+            pub.publish(_imu(T0 + s.t[k], s.gyro[k], s.accel[k]))
+            time.sleep(0.01)
+        wait_until(lambda: node.aligner.samples_used >= 5, 5.0, "samples used")
+        assert node.resets == 0
+        clock.set_ros_time_override(Time(seconds=900))
+        for k in range(10, 20):
+            pub.publish(_imu(T0 + s.t[k], s.gyro[k], s.accel[k]))
+            time.sleep(0.01)
+        wait_until(lambda: node.resets == 1, 5.0, "a restart after ROS time jumped back")
+        assert "ROS time jumped back by 100" in node.last_reset_reason
+    finally:
+        probe.node.destroy_publisher(pub)
+        probe.executor.remove_node(node)
+        node.destroy_node()
+
+
+def test_imu_sim_node_publishes_rep145_samples_and_truth(probe, tmp_path):
+    """imu_sim_node: the simulator's samples (same seed => same numbers as sim.simulate) at
+    exact 1/rate stamps starting at the node clock, REP-145 covariances from the specs
+    (orientation not provided), the truth on the same stamps; exits 0 when done."""
+    ns, rate, duration = f"/sim_{RUN}", 50.0, 4.0
+    raw = probe.subscribe(Imu, f"{ns}/imu/data_raw", SENSOR_DEEP)
+    truth = probe.subscribe(QuaternionStamped, f"{ns}/imu_sim/truth", RELIABLE_DEEP)
+    wall0 = time.time()
+    sim = NodeProcess("imu_sim_node", [
+        "-r", f"__ns:={ns}", "-p", f"rate:={rate}", "-p", "speed:=10.0",
+        "-p", f"duration:={duration}", "-p", "exit_when_done:=true", "-p", "seed:=21",
+        "-p", "rpy:=[10.0, -20.0, 135.0]", "-p", "frame_id:=imu_test", "-p", "sway:=car",
+        "-p", "wait_for_subscribers:=true"], tmp_path, "sim_t")
+    try:
+        assert sim.wait(timeout=30) == 0, sim.output()
+        n = int(rate * duration)
+        wait_until(lambda: len(raw) == n and len(truth) == n, 5.0,
+                   f"{n} samples (got {len(raw)}, truth {len(truth)})")
+    finally:
+        sim.stop()
+        probe.unsubscribe(raw)
+        probe.unsubscribe(truth)
+    ref = simulate(duration, rate=rate, rpy_deg=(10.0, -20.0, 135.0), sway="car", seed=21)
+    spec = grade_specs("navigation")
+    stamps = [stamp_ns(m.header.stamp) for m in raw.msgs]
+    assert np.all(np.diff(stamps) == int(1e9 / rate)), "stamps are not exactly 1/rate apart"
+    assert abs(stamps[0] * 1e-9 - wall0) < 10.0, "data time does not start at the node clock"
+    assert [stamp_ns(m.header.stamp) for m in truth.msgs] == stamps
+    for k, m in enumerate(raw.msgs):
+        assert m.header.frame_id == "imu_test"
+        w, f = m.angular_velocity, m.linear_acceleration
+        assert [w.x, w.y, w.z] == ref.gyro[k].tolist() and [f.x, f.y, f.z] == ref.accel[k].tolist()
+        assert m.orientation_covariance[0] == -1.0
+        assert np.allclose(np.array(m.angular_velocity_covariance).reshape(3, 3),
+                           np.eye(3) * spec.gyro_arw ** 2 * rate, rtol=1e-12, atol=0)
+        assert np.allclose(np.array(m.linear_acceleration_covariance).reshape(3, 3),
+                           np.eye(3) * spec.accel_vrw ** 2 * rate, rtol=1e-12, atol=0)
+        q = truth.msgs[k].quaternion
+        assert [q.x, q.y, q.z, q.w] == ref.quat_true[k].tolist()
