@@ -257,6 +257,38 @@ def decode_imu_batch(raws: Sequence[bytes | bytearray | memoryview], layout: str
     if layout not in LAYOUTS:
         raise ValueError(f"unknown layout {layout!r}; choose one of {', '.join(LAYOUTS)}")
     n = len(raws)
+    if n == 0:
+        return decode_imu_array(np.empty(0, np.uint8), np.empty(0, np.int64),
+                                np.empty(0, np.int64), layout, fallback)
+    sizes = np.fromiter(map(len, raws), np.int64, n)
+    buf = np.frombuffer(b"".join(raws), np.uint8)
+    starts = np.zeros(n, np.int64)
+    np.cumsum(sizes[:-1], out=starts[1:])
+    return decode_imu_array(buf, starts, sizes, layout, fallback)
+
+
+def decode_imu_array(buf: np.ndarray, starts: np.ndarray, sizes: np.ndarray,
+                     layout: str = "ros2", fallback: Fallback | None = None) -> ImuBatch:
+    """Decode the serialised Imu messages ``buf[starts[i]:starts[i] + sizes[i]]``.
+
+    The messages may sit anywhere in ``buf`` (a 1-D uint8 array, e.g. a decompressed MCAP
+    chunk): messages of one size whose starts are evenly spaced are read through one strided
+    view of ``buf`` (no copy), others are gathered with one fancy index per size. Validation,
+    fallback and errors as :func:`decode_imu_batch` (``fallback`` gets ``bytes`` of the
+    message and its index in ``starts``).
+    """
+    if layout not in LAYOUTS:
+        raise ValueError(f"unknown layout {layout!r}; choose one of {', '.join(LAYOUTS)}")
+    buf = np.asarray(buf)
+    if buf.dtype != np.uint8 or buf.ndim != 1:
+        raise ValueError("buf must be a 1-D uint8 array")
+    starts = np.asarray(starts, np.int64)
+    sizes = np.asarray(sizes, np.int64)
+    n = len(starts)
+    if len(sizes) != n:
+        raise ValueError(f"starts and sizes lengths differ: {n}, {len(sizes)}")
+    if n and (starts.min() < 0 or sizes.min() < 0 or (starts + sizes).max() > len(buf)):
+        raise ValueError("a message lies outside buf")
     sec = np.zeros(n, np.int64)
     nanosec = np.zeros(n, np.int64)
     seq = np.zeros(n, np.int64) if layout == "ros1" else None
@@ -264,16 +296,15 @@ def decode_imu_batch(raws: Sequence[bytes | bytearray | memoryview], layout: str
     frame_id: list = [None] * n
     bad: list[int] = []
     if n:
-        lens = np.fromiter(map(len, raws), np.int64, n)
-        first = lens[0]
-        if (lens == first).all():
+        first = sizes[0]
+        if (sizes == first).all():
             groups = [(int(first), None)]
         else:
-            groups = [(int(s), np.flatnonzero(lens == s)) for s in np.unique(lens)]
+            groups = [(int(s), np.flatnonzero(sizes == s)) for s in np.unique(sizes)]
         group = _decode_ros2 if layout == "ros2" else _decode_ros1
         for size, idx in groups:
-            sub = raws if idx is None else [raws[i] for i in idx]
-            bad_local = group(sub, size, idx, sec, nanosec, seq, floats, frame_id)
+            rows = message_rows(buf, starts if idx is None else starts[idx], size)
+            bad_local = group(rows, idx, sec, nanosec, seq, floats, frame_id)
             bad.extend((bad_local if idx is None else idx[bad_local]).tolist())
     batch = ImuBatch(sec, nanosec, frame_id, floats, seq)
     if bad:
@@ -283,16 +314,35 @@ def decode_imu_batch(raws: Sequence[bytes | bytearray | memoryview], layout: str
             if fb is None:
                 fb = _FALLBACKS[layout] = default_fallback(layout)
         for i in sorted(bad):
+            raw = buf[starts[i]:starts[i] + sizes[i]].tobytes()
             if fallback is not None:
-                msg = fb(bytes(raws[i]), i)
+                msg = fb(raw, i)
             else:
                 try:
-                    msg = fb(bytes(raws[i]), i)
+                    msg = fb(raw, i)
                 except Exception as e:  # noqa: BLE001 - rosbags raises several kinds
                     raise ImuDecodeError(i, " ".join(str(e).split()) or type(e).__name__) \
                         from e
             _store(batch, i, msg)
     return batch
+
+
+def message_rows(buf: np.ndarray, starts: np.ndarray, size: int) -> np.ndarray:
+    """(m, size) uint8 array of ``buf[starts[i]:starts[i] + size]`` (in bounds, checked by
+    the caller): a strided view of ``buf`` when the starts are evenly spaced by at least
+    ``size`` bytes (a run of equal records), else a gathered copy."""
+    m = len(starts)
+    if m == 0:
+        return np.empty((0, size), np.uint8)
+    s0 = int(starts[0])
+    if m == 1:
+        return buf[s0:s0 + size][None]
+    step = np.diff(starts)
+    stride = int(step[0])
+    if stride >= size and (step == stride).all():
+        return np.lib.stride_tricks.as_strided(buf[s0:], shape=(m, size), strides=(stride, 1),
+                                               writeable=False)
+    return buf[starts[:, None] + np.arange(size)]
 
 
 def _store(b: ImuBatch, i: int, msg) -> None:
@@ -314,46 +364,43 @@ def _store(b: ImuBatch, i: int, msg) -> None:
     b.fallback[i] = msg
 
 
-def _decode_ros2(raws, size, idx, sec, nanosec, seq, floats, frame_id) -> np.ndarray:
-    """Decode one group of ROS 2 messages of ``size`` bytes; returns local indices to redo."""
-    m = len(raws)
+def _decode_ros2(u8, idx, sec, nanosec, seq, floats, frame_id) -> np.ndarray:
+    """Decode one group of ROS 2 messages, the rows of ``u8`` (m, size); returns the local
+    indices to redo."""
+    m, size = u8.shape
     body_pad = size - 4 - FLOATS_NBYTES          # P: header + string + padding
     if body_pad < 16 or body_pad % 8:
         return np.arange(m)                       # no valid string length gives this size
     dt = np.dtype({"names": ["enc", "sec", "nanosec", "slen", "f"],
                    "formats": ["<u4", "<i4", "<u4", "<u4", ("<f8", (N_FLOATS,))],
                    "offsets": [0, 4, 8, 12, 4 + body_pad], "itemsize": size})
-    buf = b"".join(raws)
-    rec = np.frombuffer(buf, dt)
-    u8 = np.frombuffer(buf, np.uint8).reshape(m, size)
+    rec = u8.view(dt)[:, 0]
     slen = rec["slen"].astype(np.int64)
     # L with 8 * ceil((12 + L) / 8) == P and L >= 1; then its last byte must be NUL
     ok = (rec["enc"] == _CDR_LE_U4) & (slen >= max(1, body_pad - 19)) & (slen <= body_pad - 12)
     nul_at = np.where(ok, 15 + slen, 0)
     ok &= u8[np.arange(m), nul_at] == 0
     _fill(rec, ok, idx, sec, nanosec, floats)
-    _strings(buf, u8, ok, slen - 1, idx, size, frame_id)
+    _strings(u8, ok, slen - 1, idx, frame_id)
     return np.flatnonzero(~ok)
 
 
-def _decode_ros1(raws, size, idx, sec, nanosec, seq, floats, frame_id) -> np.ndarray:
-    m = len(raws)
+def _decode_ros1(u8, idx, sec, nanosec, seq, floats, frame_id) -> np.ndarray:
+    m, size = u8.shape
     nstr = size - 16 - FLOATS_NBYTES
     if nstr < 0:
         return np.arange(m)
     dt = np.dtype({"names": ["seq", "sec", "nanosec", "slen", "f"],
                    "formats": ["<u4", "<i4", "<u4", "<u4", ("<f8", (N_FLOATS,))],
                    "offsets": [0, 4, 8, 12, 16 + nstr], "itemsize": size})
-    buf = b"".join(raws)
-    rec = np.frombuffer(buf, dt)
-    u8 = np.frombuffer(buf, np.uint8).reshape(m, size)
+    rec = u8.view(dt)[:, 0]
     ok = rec["slen"] == nstr
     _fill(rec, ok, idx, sec, nanosec, floats)
     if idx is None:
         seq[:] = rec["seq"]
     else:
         seq[idx] = rec["seq"]
-    _strings(buf, u8, ok, np.full(m, nstr, np.int64), idx, size, frame_id)
+    _strings(u8, ok, np.full(m, nstr, np.int64), idx, frame_id)
     return np.flatnonzero(~ok)
 
 
@@ -369,9 +416,8 @@ def _fill(rec, ok, idx, sec, nanosec, floats) -> None:
         floats[idx] = rec["f"]
 
 
-def _strings(buf: bytes, u8: np.ndarray, ok: np.ndarray, nbytes: np.ndarray, idx, size: int,
-             frame_id: list) -> None:
-    """Decode the frame_ids (UTF-8, from byte 16, ``nbytes`` each) of the valid rows.
+def _strings(u8: np.ndarray, ok: np.ndarray, nbytes: np.ndarray, idx, frame_id: list) -> None:
+    """Decode the frame_ids (UTF-8, from byte 16 of each row, ``nbytes`` each) of valid rows.
 
     Rows that are not valid UTF-8 are marked not ok (the fallback then raises, as rosbags
     does for them). When every valid row holds the same bytes, they are decoded once.
@@ -386,7 +432,7 @@ def _strings(buf: bytes, u8: np.ndarray, ok: np.ndarray, nbytes: np.ndarray, idx
         same = bool((u8[rows, 16:16 + k0] == u8[r0, 16:16 + k0]).all())
     if same:
         try:
-            s = buf[r0 * size + 16:r0 * size + 16 + k0].decode()
+            s = u8[r0, 16:16 + k0].tobytes().decode()
         except UnicodeDecodeError:
             ok[rows] = False
             return
@@ -398,7 +444,7 @@ def _strings(buf: bytes, u8: np.ndarray, ok: np.ndarray, nbytes: np.ndarray, idx
         return
     cache: dict[bytes, str | None] = {}
     for r, k in zip(rows.tolist(), nbytes[rows].tolist()):
-        raw = buf[r * size + 16:r * size + 16 + k]
+        raw = u8[r, 16:16 + k].tobytes()
         if raw in cache:
             s = cache[raw]
         else:

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .rotation import dcm_from_quat
+
 
 def _qmul(a, b):
     """Hamilton product of component tuples (x, y, z, w) of equal-shape arrays."""
@@ -49,22 +51,6 @@ def _qrot(q, v):
     return np.stack([vx + qw * tx + (qy * tz - qz * ty),
                      vy + qw * ty + (qz * tx - qx * tz),
                      vz + qw * tz + (qx * ty - qy * tx)], axis=-1)
-
-
-def _qdcm(q):
-    """DCM (..., 3, 3) of quaternion components."""
-    x, y, z, w = q
-    out = np.empty(x.shape + (3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - z * w)
-    out[..., 0, 2] = 2 * (x * z + y * w)
-    out[..., 1, 0] = 2 * (x * y + z * w)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - x * w)
-    out[..., 2, 0] = 2 * (x * z - y * w)
-    out[..., 2, 1] = 2 * (y * z + x * w)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
 
 
 def prefix_rotations(dt, w: np.ndarray) -> tuple:
@@ -124,7 +110,7 @@ def preintegrate(dt: float, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
         c = (lengths[:, None] - pos[None, :]) * dt * valid        # (S, L)
         V = np.einsum("kl,sl,slnj->sknj", ws, c, u)
     last = (np.arange(S), lengths - 1)
-    dcm_end = _qdcm(tuple(comp[last] for comp in q))
+    dcm_end = dcm_from_quat(np.stack([comp[last] for comp in q], axis=-1))
     return dcm_end, A, V
 
 
