@@ -426,18 +426,33 @@ def main(args: list[str] | None = None) -> int:
     parse_cli(parser, args)
 
     import rclpy
+
+    return run_node(args, _make_node_class(), lambda node: rclpy.spin(node))
+
+
+def run_node(args, node_class, spin) -> int:
+    """rclpy lifecycle shared by the executables (Jazzy style): init, spin, clean shutdown.
+
+    Returns 1 when the node refuses to start (StartupError, already logged in one line),
+    else 0. Ctrl-C / SIGTERM end it through rclpy's handler; a publish that races with that
+    shutdown (RCLError with the context already invalid) is part of a normal stop.
+    """
+    import rclpy
     from rclpy.executors import ExternalShutdownException
 
     quiet_sigint()
     rclpy.init(args=args)
     node = None
     try:
-        node = _make_node_class()()
-        rclpy.spin(node)
+        node = node_class()
+        spin(node)
     except StartupError:
         return 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

@@ -260,25 +260,11 @@ def main(args: list[str] | None = None) -> int:
     parse_cli(parser, args)
 
     import rclpy
-    from rclpy.executors import ExternalShutdownException
 
-    from .align_node import StartupError, quiet_sigint
+    from .align_node import run_node
 
-    quiet_sigint()
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = _make_node_class()()
-        rclpy.spin_until_future_complete(node, node.done)
-    except StartupError:
-        return 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(args, _make_node_class(),
+                    lambda node: rclpy.spin_until_future_complete(node, node.done))
 
 
 if __name__ == "__main__":
