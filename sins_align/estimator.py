@@ -792,6 +792,9 @@ class Aligner:
         -------
         accepted : int — how many samples were used; the rest are counted in :attr:`rejected`.
         """
+        if np.ndim(stamp) == 0 and np.shape(gyro) == (3,) and np.shape(accel) == (3,):
+            return self._sample(float(stamp), np.asarray(gyro, dtype=float),
+                                np.asarray(accel, dtype=float))
         t = np.atleast_1d(np.asarray(stamp, dtype=float))
         w = np.asarray(gyro, dtype=float).reshape(-1, 3)
         f = np.asarray(accel, dtype=float).reshape(-1, 3)
@@ -908,8 +911,13 @@ class Aligner:
             self.events["gap"] += 1
         self.t_last = t
         self.samples_used += 1
-        self.filter.step(dt, w[None], f[None], gap)
-        self._refresh_aligned()
+        fl = self.filter
+        before = (fl.updates, fl.stage, id(fl))
+        fl.step(dt, w[None], f[None], gap)
+        if (fl.updates, fl.stage, id(fl)) != before or self._aligned:
+            # the published std only shrinks at an update (or the backtrack); between
+            # updates the flag cannot newly turn true, so the check is skipped there
+            self._refresh_aligned()
         return 1
 
     # ------------------------------------------------------------------ aligned flag
