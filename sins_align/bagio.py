@@ -6,19 +6,26 @@
 - rosbag2 writing with the ROS 2 Jazzy typestore (:func:`open_writer`, :class:`Messages`);
 - rosbag1/rosbag2 reading with errors turned into one line (:func:`open_reader`,
   :func:`read_messages`, :func:`read_message_chunks`, :func:`deserialize`);
+- one topic's raw messages in blocks (:class:`TopicBlocks`), MCAP chunks parsed with numpy
+  (:class:`McapTopicReader`; rosbags' order and bytes, rosbags for anything else);
 - a progress line on stderr, only when stderr is a terminal (:class:`Progress`).
 
 Bags are read and written with the ``rosbags`` library (ternaris/rosbags); no ROS install
-is needed. Timestamps are integer nanoseconds.
+is needed (the MCAP reader uses rosbags' own zstd and lz4 dependencies). Timestamps are
+integer nanoseconds.
 """
 from __future__ import annotations
 
 import os
 import shutil
+import struct
 import sys
 import time
+import zlib
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
+
+import numpy as np
 
 from .imu_fields import ImuCovariances, ImuFields, TruthFields
 
@@ -339,6 +346,412 @@ def deserialize(reader, raw: bytes, msgtype: str, path, timestamp: int):
     except Exception as e:  # noqa: BLE001
         raise CliError(f"cannot decode a {msgtype} message at {timestamp} ns in {path}: "
                        f"{one_line(e)}") from None
+
+
+# ----------------------------------------------------------------------------- topic blocks
+#: Messages per :class:`MessageBlock` (bounds the memory of the bulk decoding).
+BLOCK_SIZE = 4096
+#: Most messages per block taken from one MCAP chunk (they are views into the chunk).
+MCAP_BLOCK_MAX = 16384
+
+
+class MessageBlock:
+    """Serialised messages of one topic, in bag order, held in one byte array.
+
+    Message ``i`` is ``buf[starts[i]:starts[i] + sizes[i]]`` (``buf``: 1-D uint8 array, e.g.
+    a decompressed MCAP chunk; the messages need not be contiguous); ``log_ns`` are their
+    log times (int64 ns). Decode with :func:`sins_align.cdr.decode_imu_array`.
+    """
+
+    __slots__ = ("log_ns", "buf", "starts", "sizes")
+
+    def __init__(self, log_ns: np.ndarray, buf: np.ndarray, starts: np.ndarray,
+                 sizes: np.ndarray):
+        self.log_ns = log_ns
+        self.buf = buf
+        self.starts = starts
+        self.sizes = sizes
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def raw(self, i: int) -> bytes:
+        s = int(self.starts[i])
+        return self.buf[s:s + int(self.sizes[i])].tobytes()
+
+    @classmethod
+    def from_items(cls, items: Sequence[tuple[object, int, bytes]]) -> "MessageBlock":
+        """From rosbags' ``(connection, log ns, raw)`` items (their bytes are joined)."""
+        n = len(items)
+        sizes = np.fromiter((len(raw) for _, _, raw in items), np.int64, n)
+        starts = np.zeros(n, np.int64)
+        if n:
+            np.cumsum(sizes[:-1], out=starts[1:])
+        buf = np.frombuffer(b"".join(raw for _, _, raw in items), np.uint8)
+        log_ns = np.fromiter((ns for _, ns, _ in items), np.int64, n)
+        return cls(log_ns, buf, starts, sizes)
+
+
+class TopicBlocks:
+    """The messages of ``connections`` (one topic) as :class:`MessageBlock` s, in exactly the
+    order and with exactly the bytes of rosbags' ``reader.messages(connections)``.
+
+    rosbag2 MCAP bags (a ``.mcap`` file or a directory of them, storage-level compression
+    none, zstd or lz4) are read by :class:`McapTopicReader`, which parses the container
+    itself and slices the messages out of each decompressed chunk with numpy (no Python
+    work per message). Everything else (sqlite3, ROS 1, message-compressed rosbag2, MCAP
+    without a chunk index or with overlapping chunks, anything unusual in a chunk) is read by
+    rosbags, in blocks of ``block_size``. A problem found mid-bag switches to rosbags for the
+    rest: rosbags' stream is read from the start and the messages already delivered are
+    skipped, so the sequence is rosbags' either way.
+
+    After iteration, ``fast_messages`` is the number of messages the MCAP path delivered and
+    ``fallback_reason`` why rosbags read (the rest of) the bag, None if it did not.
+    """
+
+    def __init__(self, reader, connections, path, block_size: int = BLOCK_SIZE,
+                 fast: bool = True):
+        if block_size < 1:
+            raise ValueError(f"block size must be >= 1, got {block_size}")
+        self.reader = reader
+        self.connections = list(connections)
+        self.path = path
+        self.block_size = int(block_size)
+        self.fast = fast
+        self.fast_messages = 0
+        self.fallback_reason: str | None = None
+
+    def __iter__(self) -> Iterator[MessageBlock]:
+        delivered = 0
+        last_ns = None
+        if not self.fast:
+            self.fallback_reason = "fast MCAP path disabled"
+        else:
+            try:
+                fast = McapTopicReader.for_reader(self.reader, self.connections)
+                it = iter(fast.blocks(MCAP_BLOCK_MAX))
+            except Exception as e:  # noqa: BLE001 - McapUnusual, or rosbags internals moved
+                self.fallback_reason = one_line(e)
+            else:
+                while True:
+                    try:
+                        block = next(it)
+                    except StopIteration:
+                        return
+                    except Exception as e:  # noqa: BLE001 - anything odd: rosbags decides
+                        self.fallback_reason = one_line(e)
+                        break
+                    if len(block):
+                        delivered += len(block)
+                        self.fast_messages = delivered
+                        last_ns = int(block.log_ns[-1])
+                        yield block
+        items: list[tuple[object, int, bytes]] = []
+        skip = delivered
+        for item in read_messages(self.reader, self.connections, self.path):
+            if skip:
+                skip -= 1
+                if skip == 0 and item[1] != last_ns:
+                    raise RuntimeError(f"fast MCAP reading of {self.path} disagrees with "
+                                       f"rosbags at message {delivered}")
+                continue
+            items.append(item)
+            if len(items) >= self.block_size:
+                yield MessageBlock.from_items(items)
+                items = []
+        if skip:
+            raise RuntimeError(f"fast MCAP reading of {self.path} delivered {delivered} "
+                               f"messages, rosbags has {delivered - skip}")
+        if items:
+            yield MessageBlock.from_items(items)
+
+
+# ----------------------------------------------------------------------------- MCAP
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+_OP_HEADER, _OP_FOOTER, _OP_MESSAGE, _OP_CHUNK = 0x01, 0x02, 0x05, 0x06
+_OP_MESSAGE_INDEX, _OP_CHUNK_INDEX, _OP_SUMMARY_OFFSET = 0x07, 0x08, 0x0E
+#: Message record: opcode, record length, then channel_id u16, sequence u32, log_time u64,
+#: publish_time u64 (22 bytes) and the data.
+_MSG_HEAD = np.dtype({"names": ["op", "len", "channel", "log"],
+                      "formats": ["u1", "<u8", "<u2", "<u8"],
+                      "offsets": [0, 1, 9, 15], "itemsize": 31})
+_INDEX_ENTRY = np.dtype([("log", "<u8"), ("offset", "<u8")])
+_I64_MAX = 2 ** 63 - 1
+
+
+class McapUnusual(Exception):
+    """The MCAP file is outside what :class:`McapTopicReader` reads (rosbags reads it)."""
+
+
+class _ChunkIndex:
+    __slots__ = ("start", "end", "offset", "length", "index_offsets", "index_length",
+                 "compression", "compressed_size", "uncompressed_size")
+
+    def __init__(self, body: bytes):
+        self.start, self.end, self.offset, self.length = struct.unpack_from("<QQQQ", body, 0)
+        (n,) = struct.unpack_from("<I", body, 32)
+        p = 36 + n
+        if n % 10 or p + 8 + 4 > len(body):
+            raise McapUnusual("malformed chunk index")
+        # a dict, as rosbags reads it (a repeated channel: the last entry)
+        self.index_offsets = {c: o for c, o in struct.iter_unpack("<HQ", body[36:p])}
+        (self.index_length,) = struct.unpack_from("<Q", body, p)
+        (k,) = struct.unpack_from("<I", body, p + 8)
+        self.compression = body[p + 12:p + 12 + k].decode()
+        self.compressed_size, self.uncompressed_size = struct.unpack_from(
+            "<QQ", body, p + 12 + k)
+
+    def counts(self) -> dict[int, int]:
+        """Messages per channel as rosbags derives them from the message index offsets."""
+        oc = sorted((o, c) for c, o in self.index_offsets.items())
+        bounds = [o for o, _ in oc] + [self.offset + self.length + self.index_length]
+        return {c: (y - o - 15) // 16 for (o, c), y in zip(oc, bounds[1:]) if y - o - 15}
+
+
+class McapTopicReader:
+    """Reads the messages of some channels of rosbag2 MCAP files, chunk by chunk, with numpy.
+
+    What it takes (anything else raises :class:`McapUnusual`, before any message for what
+    the summary shows, else at the chunk concerned):
+
+    - a summary section with chunk indexes (rosbags then reads chunk by chunk too); the
+      chunks holding the channels, in file order, do not overlap in log time (each ends at
+      or before the next starts), so reading them in file order gives rosbags' order
+      (a merge by log time, ties by chunk offset);
+    - chunks compressed with zstd or lz4 or not at all, whose header agrees with the index,
+      of the declared size and CRC (if set);
+    - inside a decompressed chunk, the message index records (after the chunk) of all its
+      channels tile the chunk's Message records: each entry points at a Message record of
+      its channel with its log time, records do not overlap and the bytes between them
+      are other records (schemas, channels: walked one by one) holding no message of the
+      channels read; the channels' messages lie within the chunk's time range.
+
+    The messages of a chunk are then taken with vectorised indexing (:func:`numpy.argsort`,
+    stable, by log time, as rosbags sorts a chunk) and handed out as views into the chunk.
+    """
+
+    def __init__(self, files: Sequence[tuple[Path, frozenset[int]]]):
+        self.files = [(Path(p), frozenset(ids)) for p, ids in files]
+
+    @classmethod
+    def for_reader(cls, reader, connections) -> "McapTopicReader":
+        """The files and channel ids rosbags' ``reader.messages(connections)`` reads, in its
+        order (an open ``AnyReader`` of a rosbag2 bag with mcap storage)."""
+        try:
+            from rosbags.rosbag2.reader import DirectoryReader
+            from rosbags.rosbag2.storage_mcap import McapReader
+        except ImportError as e:   # pragma: no cover - rosbags is pinned
+            raise McapUnusual(f"rosbags layout: {e}") from None
+        if not getattr(reader, "is2", False) or len(getattr(reader, "readers", ())) != 1:
+            raise McapUnusual("not a single rosbag2 bag")
+        storage = getattr(reader.readers[0], "storage", None)
+        conns = list(connections)
+        if isinstance(storage, McapReader):
+            if any(c.owner is not storage for c in conns):
+                raise McapUnusual("connections of another reader")
+            return cls([(storage.path, frozenset(c.id for c in conns))])
+        if not isinstance(storage, DirectoryReader):
+            raise McapUnusual(f"storage {type(storage).__name__} is not mcap")
+        if storage.metadata.compression_mode:
+            raise McapUnusual(f"rosbag2 compression mode {storage.metadata.compression_mode}")
+        if any(c.owner is not storage for c in conns):
+            raise McapUnusual("connections of another reader")
+        files = []
+        for st in storage.storages:
+            if not isinstance(st, McapReader):
+                raise McapUnusual(f"storage {type(st).__name__} is not mcap")
+            # the storage connections rosbags' DirectoryReader.messages maps to the request
+            ids = frozenset(x.id for x in st.connections if any(
+                y.topic == x.topic and y.msgtype == x.msgtype and y.ext == x.ext
+                and (not x.digest or not y.digest or y.digest == x.digest) for y in conns))
+            if ids:
+                files.append((st.path, ids))
+        return cls(files)
+
+    # -- reading -------------------------------------------------------------------------
+    def blocks(self, max_messages: int = MCAP_BLOCK_MAX) -> Iterator[MessageBlock]:
+        """MessageBlocks of at most ``max_messages``, in rosbags' order, chunk by chunk."""
+        plans = [(path, ids, self._plan(path, ids)) for path, ids in self.files]
+        for path, ids, chunks in plans:
+            with open(path, "rb") as f:
+                for ci in chunks:
+                    block = self._read_chunk(f, ci, ids)
+                    n = len(block)
+                    if n <= max_messages:
+                        yield block
+                        continue
+                    for k in range(0, n, max_messages):
+                        sl = slice(k, k + max_messages)
+                        yield MessageBlock(block.log_ns[sl], block.buf, block.starts[sl],
+                                           block.sizes[sl])
+
+    @staticmethod
+    def _plan(path: Path, ids: frozenset[int]) -> list[_ChunkIndex]:
+        """The chunks holding the channels, in reading order (checked not to overlap)."""
+        with open(path, "rb") as f:
+            size = f.seek(0, 2)
+            f.seek(0)
+            if size < 8 + 37 or f.read(8) != MCAP_MAGIC:
+                raise McapUnusual("not an MCAP file")
+            f.seek(size - 37)
+            foot = f.read(37)
+            if foot[:9] != bytes([_OP_FOOTER, 20, 0, 0, 0, 0, 0, 0, 0]) or \
+                    foot[-8:] != MCAP_MAGIC:
+                raise McapUnusual("invalid MCAP footer")
+            (summary_start,) = struct.unpack_from("<Q", foot, 9)
+            if not 8 < summary_start <= size - 37:
+                raise McapUnusual("no summary section")
+            f.seek(summary_start)
+            data = f.read(size - 37 - summary_start)
+        chunks: list[_ChunkIndex] = []
+        pos = 0
+        while pos < len(data):
+            if pos + 9 > len(data):
+                raise McapUnusual("truncated summary")
+            op = data[pos]
+            if op in (_OP_FOOTER, _OP_SUMMARY_OFFSET):
+                break
+            (n,) = struct.unpack_from("<Q", data, pos + 1)
+            if pos + 9 + n > len(data):
+                raise McapUnusual("truncated summary record")
+            if op == _OP_CHUNK_INDEX:
+                chunks.append(_ChunkIndex(data[pos + 9:pos + 9 + n]))
+            pos += 9 + n
+        if not chunks:
+            raise McapUnusual("no chunk index")
+        used = sorted((c for c in chunks if any(c.counts().get(i, 0) for i in ids)),
+                      key=lambda c: c.offset)
+        for a, b in zip(used, used[1:]):
+            if b.offset <= a.offset:
+                raise McapUnusual("a chunk is indexed twice")
+            if a.end > b.start:
+                raise McapUnusual("chunks overlap in log time")
+        for c in used:
+            if c.compression not in ("", "zstd", "lz4"):
+                raise McapUnusual(f"chunk compression {c.compression!r}")
+            if c.offset + c.length + c.index_length > size:
+                raise McapUnusual("chunk beyond the end of the file")
+        return used
+
+    @staticmethod
+    def _read_chunk(f, ci: _ChunkIndex, ids: frozenset[int]) -> MessageBlock:
+        f.seek(ci.offset)
+        data = f.read(ci.length + ci.index_length)
+        if len(data) != ci.length + ci.index_length or data[0] != _OP_CHUNK:
+            raise McapUnusual("chunk record not where indexed")
+        (rec_len,) = struct.unpack_from("<Q", data, 1)
+        start, end, usize, crc, k = struct.unpack_from("<QQQII", data, 9)
+        comp = data[41:41 + k]
+        if 9 + rec_len != ci.length or (start, end, usize) != (ci.start, ci.end,
+                                                                ci.uncompressed_size) \
+                or comp != ci.compression.encode():
+            raise McapUnusual("chunk header disagrees with its index")
+        (csize,) = struct.unpack_from("<Q", data, 41 + k)
+        p = 49 + k
+        if csize != ci.compressed_size or p + csize > ci.length:
+            raise McapUnusual("chunk sizes disagree with its index")
+        raw = _decompress(data[p:p + csize], ci.compression, usize)
+        if crc and zlib.crc32(raw) != crc:
+            raise McapUnusual("chunk CRC mismatch")
+        # the message index records of every channel of the chunk
+        offs, tags, logs = [], [], []
+        for cid, moff in ci.index_offsets.items():
+            q = moff - ci.offset
+            if not ci.length <= q <= len(data) - 15 or data[q] != _OP_MESSAGE_INDEX:
+                raise McapUnusual("message index not where indexed")
+            (mlen,) = struct.unpack_from("<Q", data, q + 1)
+            ch, nbytes = struct.unpack_from("<HI", data, q + 9)
+            if ch != cid or nbytes % 16 or 6 + nbytes > mlen or q + 9 + mlen > len(data):
+                raise McapUnusual("malformed message index")
+            e = np.frombuffer(data, _INDEX_ENTRY, nbytes // 16, q + 15)
+            offs.append(e["offset"])
+            logs.append(e["log"])
+            tags.append(np.full(len(e), cid, np.uint16))
+        u8 = np.frombuffer(raw, np.uint8)
+        o = np.concatenate(offs) if offs else np.empty(0, np.uint64)
+        if len(o) == 0:
+            raise McapUnusual("chunk without indexed messages")
+        if int(o.max()) > usize - 31:
+            raise McapUnusual("message index entry outside the chunk")
+        order = np.argsort(o, kind="stable")
+        o = o[order].astype(np.int64)
+        tag = np.concatenate(tags)[order]
+        log = np.concatenate(logs)[order]
+        # a record head at every byte of the chunk (a view), picked at the indexed offsets
+        head = np.ndarray((usize - 30,), _MSG_HEAD, raw, 0, (1,))[o]
+        length = head["len"]
+        if not ((head["op"] == _OP_MESSAGE).all() and (head["channel"] == tag).all()
+                and (head["log"] == log).all() and (length >= 22).all()
+                and (length <= usize).all()):
+            raise McapUnusual("message index disagrees with the chunk's records")
+        ends = o + 9 + length.astype(np.int64)
+        if (ends[:-1] > o[1:]).any() or ends[-1] > usize:
+            raise McapUnusual("overlapping message records")
+        # what lies between indexed messages: other records, walked one by one
+        gaps = [(int(a), int(b)) for a, b in zip(ends[:-1][ends[:-1] < o[1:]],
+                                                 o[1:][ends[:-1] < o[1:]])]
+        if o[0] > 0:
+            gaps.insert(0, (0, int(o[0])))
+        if ends[-1] < usize:
+            gaps.append((int(ends[-1]), usize))
+        for a, b in gaps:
+            _check_gap(raw, a, b, ids)
+        sel = np.isin(tag, np.fromiter(ids, np.uint16, len(ids)))
+        so, slog, slen = o[sel], log[sel], length[sel]
+        if not ((slog >= start) & (slog <= end)).all() or (len(slog) and
+                                                         slog.max() > _I64_MAX):
+            raise McapUnusual("message log time outside its chunk's range")
+        if len(slog) > 1 and (slog[1:] < slog[:-1]).any():
+            perm = np.argsort(slog, kind="stable")
+            so, slog, slen = so[perm], slog[perm], slen[perm]
+        return MessageBlock(slog.astype(np.int64), u8, so + 31, slen.astype(np.int64) - 22)
+
+
+def _check_gap(raw: bytes, a: int, b: int, ids: frozenset[int]):
+    """Bytes a..b of a chunk: whole records, none a message of the channels read."""
+    pos = a
+    while pos < b:
+        if pos + 9 > b:
+            raise McapUnusual("record straddles an indexed message")
+        op = raw[pos]
+        (n,) = struct.unpack_from("<Q", raw, pos + 1)
+        if pos + 9 + n > b:
+            raise McapUnusual("record straddles an indexed message")
+        if op == _OP_MESSAGE:
+            if n < 22:
+                raise McapUnusual("message record too short")
+            (ch,) = struct.unpack_from("<H", raw, pos + 9)
+            if ch in ids:
+                raise McapUnusual("unindexed message of the topic")
+        pos += 9 + n
+
+
+_DECOMPRESSORS: dict[str, Callable[[bytes], bytes]] = {}
+
+
+def _decompressor(compression: str) -> Callable[[bytes], bytes]:
+    """zstd / lz4 frame decompression with the modules rosbags itself uses."""
+    fn = _DECOMPRESSORS.get(compression)
+    if fn is None:
+        if compression == "zstd":
+            try:
+                from compression import zstd          # Python 3.14
+            except ImportError:
+                from backports import zstd            # what rosbags uses before 3.14
+            fn = zstd.decompress
+        elif compression == "lz4":
+            from lz4.frame import decompress as fn
+        else:
+            raise McapUnusual(f"chunk compression {compression!r}")
+        _DECOMPRESSORS[compression] = fn
+    return fn
+
+
+def _decompress(data: bytes, compression: str, size: int) -> bytes:
+    raw = data if compression == "" else _decompressor(compression)(data)
+    if len(raw) != size:
+        raise McapUnusual("chunk size mismatch")
+    return raw
 
 
 # ----------------------------------------------------------------------------- progress

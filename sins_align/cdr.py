@@ -2,8 +2,10 @@
 
 rosbags deserialises one message at a time (about 1e5 msgs/s); an Imu message has a fixed
 layout apart from its ``header.frame_id``, so a batch of raw messages of one length is
-decoded here with a single ``np.frombuffer`` over their concatenated bytes and a structured
-dtype (several 1e6 msgs/s).
+decoded here with a single structured-dtype view over their bytes (several 1e6 msgs/s):
+:func:`decode_imu_batch` for a list of messages (joined first), :func:`decode_imu_array`
+for messages lying in one buffer (a decompressed MCAP chunk: evenly spaced ones through a
+strided view, without copying them).
 
 Layouts
 -------

@@ -199,6 +199,14 @@ def test_replay_gives_identical_results_from_sqlite3_and_ros1_bags(work, sim_bag
         assert s["final"]["orientation_xyzw"] == ref["final"]["orientation_xyzw"], bag
         assert s["final"]["error_enu_deg"] == ref["final"]["error_enu_deg"], bag
         assert s["samples"] == ref["samples"]
+    # summary only (the block path: numpy MCAP reader, rosbags for the others; blocks of the
+    # same boundaries whatever the storage): bit-identical too
+    block = []
+    for bag in (sim_bag, db, ros1):
+        s, sess = replay.replay(bag, AlignConfig(latitude_deg=LAT), progress=False)
+        assert sess.block and sess.reading[0] == ("mcap-numpy" if bag == sim_bag else "rosbags")
+        block.append(s["final"]["orientation_xyzw"])
+    assert block[0] == block[1] == block[2]
 
 
 def test_replay_publishes_the_node_topics_with_the_node_conversion(mcap_run, sim_truth):
@@ -264,6 +272,140 @@ def test_replay_publishes_the_node_topics_with_the_node_conversion(mcap_run, sim
     assert float(last["heading"]) == pytest.approx(s["final"]["heading_deg"], abs=1e-6)
     assert [float(last[k]) for k in ("err_e", "err_n", "err_u")] == pytest.approx(
         s["final"]["error_enu_deg"], abs=1e-5)
+
+
+# ------------------------------------------------------------------------------ block feeding
+def write_imu_bag(path: Path, stamps_ns, gyro, accel, frames=None, compression="zstd"):
+    """rosbag2 mcap bag of /imu/data_raw with the given header stamps (log time: 10 ms steps,
+    always increasing, whatever the stamps do)."""
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    from sins_align.bagio import typestore
+
+    ts = typestore()
+    T = ts.types
+    V = T["geometry_msgs/msg/Vector3"]
+    w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    if compression == "zstd":
+        w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    w.open()
+    c = w.add_connection("/imu/data_raw", "sensor_msgs/msg/Imu", typestore=ts)
+    cov = np.zeros(9)
+    for k in range(len(stamps_ns)):
+        sec, nsec = divmod(int(stamps_ns[k]), 1_000_000_000)
+        hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
+            sec=sec, nanosec=nsec), frame_id=frames[k] if frames else "imu_link")
+        m = T["sensor_msgs/msg/Imu"](
+            header=hdr, orientation=T["geometry_msgs/msg/Quaternion"](0., 0., 0., 1.),
+            orientation_covariance=cov, angular_velocity=V(*map(float, gyro[k])),
+            angular_velocity_covariance=cov, linear_acceleration=V(*map(float, accel[k])),
+            linear_acceleration_covariance=cov)
+        w.write(c, 1_000_000_000 + 10_000_000 * k, ts.serialize_cdr(m, "sensor_msgs/msg/Imu"))
+    w.close()
+
+
+def _replay_both(bag, config, **kw):
+    """Summary-only (block path) and per-sample replays of one bag, with CSV and plot rows."""
+    out = {}
+    for per_sample in (False, True):
+        csv = bag.parent / f"{bag.name}_{per_sample}.csv"
+        s, sess = replay.replay(bag, config, per_sample=per_sample, progress=False, **kw)
+        s_csv, sess_csv = replay.replay(bag, config, per_sample=per_sample, csv_path=csv,
+                                        keep_plot=True, progress=False, **kw)
+        assert sess.reading[0] == ("rosbags" if per_sample else "mcap-numpy"), sess.reading
+        assert sess.block is not per_sample and sess_csv.block is not per_sample
+        for x in (s, s_csv):
+            x.pop("wall_time_s")
+            x.pop("messages_per_s")
+        out[per_sample] = (s, s_csv, csv.read_text(), sess_csv.series.rows)
+    return out[False], out[True]
+
+
+def _assert_same_summary(a, b, tol_rad=1e-9):
+    """Same counts, flags, times; final attitude within tol_rad; covariance to rounding."""
+    fa, fb = a["final"], b["final"]
+    err = attitude_error(dcm_from_quat(np.array(fa["orientation_xyzw"])),
+                         dcm_from_quat(np.array(fb["orientation_xyzw"])))
+    assert np.abs(err).max() < tol_rad, err
+    np.testing.assert_allclose(fa["covariance_enu_rad2"], fb["covariance_enu_rad2"],
+                               rtol=1e-7, atol=1e-20)
+    for k in ("samples", "samples_used", "rejected", "events", "duration_s", "aligned",
+              "time_to_aligned_s", "status", "resets", "stage", "aligned_changes", "config",
+              "limit_std_enu_deg"):
+        assert a[k] == b[k], k
+    assert fa["stamp_s"] == fb["stamp_s"] and fa["frame_id"] == fb["frame_id"]
+
+
+def test_block_fed_replay_equals_per_sample_replay_with_bad_samples(work):
+    """A 100 Hz bag with everything the per-sample path handles sample by sample: a looped
+    start (stamps jump back 20 s: the node's restart), a NaN, a duplicate and a backward
+    stamp, a 10 s forward time jump, frame_id changes, and a disturbance that drops the
+    aligned flag and raises it again. The summary-only replay (blocks of thousands on the
+    estimator's fast path, MCAP read by numpy) and the per-sample replay agree: attitude to
+    1e-9 rad, identical rejected counts, events, resets, time to aligned and the sample of
+    every aligned-flag change; the CSV and plot rows (blocks cut at the 10 Hz ticks) are
+    identical, character for character."""
+    sim = sim_simulate(330.0, rate=100.0, lat_deg=LAT, rpy_deg=(1.0, -2.0, 30.0), seed=3,
+                       specs="navigation")
+    n = len(sim.t)
+    stamps = 1_700_000_000 * 10**9 + np.arange(n, dtype=np.int64) * 10_000_000
+    stamps[3000:] -= 20 * 10**9                 # looped: restart at the third such stamp
+    stamps[25000:] += 10 * 10**9                # a forward time jump (time_jump, re-anchor)
+    gyro, acc = sim.gyro.copy(), sim.accel.copy()
+    acc[12000:12100, 0] += 0.02                 # a push after alignment: disturbed, then
+    acc[12100:12200, 0] -= 0.02                 # aligned again 70 s later
+    gyro[15000] = np.nan
+    stamps[17000] = stamps[16999]               # duplicate
+    stamps[17500] = stamps[17499] - 1_000_000_000   # 1 s backwards (no restart)
+    frames = ["imu_link"] * n
+    frames[20000:20003] = ["imu_a", "imu_b", "imu_a"]
+    frames[28000:] = ["imu_final"] * (n - 28000)
+    bag = work / "bad_samples"
+    write_imu_bag(bag, stamps, gyro, acc, frames)
+    (s, s_csv, csv, rows), (r, r_csv, r_csvtext, r_rows) = _replay_both(
+        bag, AlignConfig(latitude_deg=LAT))
+    _assert_same_summary(s, r)
+    _assert_same_summary(s, s_csv)
+    assert r == r_csv
+    assert s["resets"] == 1 and s["events"]["time_jump"] == 1 and s["samples"] == n
+    assert s["rejected"] == {"nonfinite": 1, "duplicate_stamp": 1, "stamp_backwards": 1,
+                             "time_jump": 1}
+    assert [c["aligned"] for c in s["aligned_changes"]] == [False, True, False, True]
+    assert s["final"]["frame_id"] == "imu_final" and s["aligned"]
+    assert csv == r_csvtext and rows == r_rows
+
+
+def test_block_fed_replay_of_a_units_fault_and_a_1khz_bag(work):
+    """Gyro rates switched to deg/s after alignment: the units check drops the flag at a
+    rejected sample, placed as the per-sample path places it. And at 1 kHz, where the CSV
+    blocks between 10 Hz ticks are long enough for the fast path, the rows agree with the
+    per-sample ones to rounding."""
+    sim = sim_simulate(200.0, rate=100.0, lat_deg=LAT, rpy_deg=(1.0, -2.0, 30.0), seed=3,
+                       specs="navigation")
+    stamps = np.arange(len(sim.t), dtype=np.int64) * 10_000_000 + 10_000_000
+    gyro = sim.gyro.copy()
+    gyro[12000:] *= 180.0 / np.pi
+    bag = work / "units"
+    write_imu_bag(bag, stamps, gyro, sim.accel)
+    (s, _, csv, _), (r, _, r_csv, _) = _replay_both(bag, AlignConfig(latitude_deg=LAT))
+    _assert_same_summary(s, r)
+    assert [c["aligned"] for c in s["aligned_changes"]] == [False, True, False]
+    assert 150.0 <= s["aligned_changes"][2]["t_s"] < 150.1       # the 150 s units window
+    assert s["rejected"]["rates_look_like_deg_per_s"] > 0 and csv == r_csv
+
+    sim = sim_simulate(30.0, rate=1000.0, lat_deg=LAT, rpy_deg=(1.0, -2.0, 30.0), seed=4,
+                       specs="navigation", sway="car")
+    stamps = np.arange(len(sim.t), dtype=np.int64) * 1_000_000 + 1_000_000
+    bag = work / "fast_1khz"
+    write_imu_bag(bag, stamps, sim.gyro, sim.accel, compression="none")
+    config = AlignConfig(latitude_deg=LAT, backtrack_time=20.0)
+    (s, _, csv, rows), (r, _, r_csv, r_rows) = _replay_both(bag, config)
+    _assert_same_summary(s, r)
+    a = np.array([[float(x) for x in line.split(",")] for line in csv.splitlines()[1:]])
+    b = np.array([[float(x) for x in line.split(",")] for line in r_csv.splitlines()[1:]])
+    assert a.shape == b.shape == (301, 14)
+    np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-9)
+    assert len(rows) == len(r_rows)
 
 
 def test_params_yaml_is_the_node_format_and_flags_override_it(work, sim_bag, capsys):
