@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
-from .kalman import discretize, joseph_update, nis
+from .kalman import _EYE6, discretize, inv3, joseph_update
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
 from .preint import earth_poly, open_loop_velocity, prefix_rotations, preintegrate
@@ -476,12 +476,12 @@ class AlignmentFilter:
         R = self.R * scale
         Ptot = self.total_covariance()
         PHt = self.P @ H.mT
-        K = PHt @ np.linalg.inv(H @ PHt + R)
-        IKH = np.eye(6) - K @ H
+        K = PHt @ inv3(H @ PHt + R)
+        IKH = _EYE6 - K @ H
         P = IKH @ self.P @ IKH.mT + K @ R @ K.mT
         self.P = 0.5 * (P + P.mT)
         self.S = self.S - K @ (H @ self.S)
-        return K, np.linalg.inv(H @ Ptot @ H.mT + R)
+        return K, inv3(H @ Ptot @ H.mT + R)
 
     def _apply(self, z, K, Sinv):
         """State part of an update: feedback of K z, NIS bookkeeping, re-inflation."""

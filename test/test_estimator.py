@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sins_align.estimator import REJECT_REASONS, Aligner, AlignConfig, AlignmentFilter
-from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
+from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy
 from sins_align.sim import simulate
 from sins_align.specs import DEG, DPH, UG, limit_error
 
