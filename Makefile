@@ -38,7 +38,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q test
 
 demo: $(STAMP)
-	$(PY) -m sins_align.demo
+	$(PY) -m sins_align.ros_demo
 
 bench: $(STAMP)
 	@set -e; shopt -s nullglob; scripts=(test/benchmarks/bench_*.py); \

@@ -12,7 +12,7 @@ package_name = 'sins_align'
 # import_imu, montecarlo). test/test_package_layout.py reads this list with ast, so keep it
 # a plain list of string literals.
 ENTRY_POINTS = [
-    'demo = sins_align.demo:main',
+    'demo = sins_align.ros_demo:main',
     'align_node = sins_align.align_node:main',
     'imu_sim_node = sins_align.imu_sim_node:main',
     'replay = sins_align.replay:main',

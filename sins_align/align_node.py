@@ -56,8 +56,6 @@ REASON_TEXT = {
                                  "looks like deg/s (REP-145 wants rad/s)",
 }
 
-#: Samples this far (s) before the last accepted one, several in a row, mean time restarted.
-BACKWARD_JUMP_CONFIRM = 3
 WARN_PERIOD = 5.0   # s (wall) between warnings for one rejection reason
 
 
@@ -120,7 +118,8 @@ def _make_node_class():
     from std_srvs.srv import Trigger
 
     from .estimator import Aligner
-    from .outputs import WARN, StampClock, diagnostic_status, euler_deg, imu_output, imu_sample
+    from .outputs import (WARN, BackwardJump, StampClock, diagnostic_status, euler_deg,
+                          imu_output, imu_sample)
 
     class AlignNode(Node):
         """ROS wrapper of :class:`Aligner`: messages in, messages out, nothing else."""
@@ -147,7 +146,7 @@ def _make_node_class():
             self.last_reset_reason = ""
             self.last_header = None
             self._published_aligned = None
-            self._backward_run = 0
+            self._jump_back = BackwardJump()
             self._reset_request: str | None = None
             self._rx_count = 0
             self._rate_mark = (time.monotonic(), 0)
@@ -294,7 +293,7 @@ def _make_node_class():
                 self._restart(self._reset_request)
             al = self.aligner
             t, w, f = imu_sample(msg, self.stamp_clock)
-            if self._time_went_back(t):
+            if self._jump_back(al, t):
                 self._restart(f"input stamps jumped back by {al.t_last - t:.3f} s")
             n_rej = sum(al.rejected.values())
             al.update(t, w, f)
@@ -310,15 +309,6 @@ def _make_node_class():
             if al.aligned != self._published_aligned:
                 self._publish_aligned()
 
-        def _time_went_back(self, t: float) -> bool:
-            """True once stamps have been far behind the last accepted one a few times."""
-            last = self.aligner.t_last
-            if last is None or not math.isfinite(t) or t >= last - self.config.max_gap:
-                self._backward_run = 0
-                return False
-            self._backward_run += 1
-            return self._backward_run >= BACKWARD_JUMP_CONFIRM
-
         def _warn_rejected(self, reason: str):
             now = time.monotonic()
             st = self._warn_state.setdefault(reason, [-math.inf, 0])
@@ -330,7 +320,7 @@ def _make_node_class():
 
         def _restart(self, why: str):
             self._reset_request = None
-            self._backward_run = 0
+            self._jump_back.run = 0
             self.aligner.reset()
             self.resets += 1
             self.last_reset_reason = why

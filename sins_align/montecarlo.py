@@ -59,6 +59,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .bagio import AtomicOutput, CliError, check_new_output, cli_main
+from .simulate import specs_from_args
 from .earth import gravity
 from .estimator import AlignConfig, AlignmentFilter
 from .rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
@@ -79,9 +80,6 @@ ONE_PASS = dict(backtrack=False, coarse_update_period=0.0)
 #: Memory budget of one chunk of runs (IMU samples + the filter's backtrack buffer), bytes.
 CHUNK_BYTES = 512 * 2 ** 20
 CHECKPOINTS = (10.0, 30.0, 60.0, 100.0, 150.0, 300.0, 600.0)
-#: --option -> (SensorSpecs field, unit to SI), as the simulate tool.
-SPEC_OPTIONS = {"gyro_bias": ("gyro_bias", DPH), "gyro_arw": ("gyro_arw", DPSH),
-                "accel_bias": ("accel_bias", UG), "accel_vrw": ("accel_vrw", UG_PSHZ)}
 
 
 # ----------------------------------------------------------------------------- statistics
@@ -697,18 +695,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _specs(args, grade: str) -> SensorSpecs:
-    specs = grade_specs(grade)
-    over = {}
-    for opt, (fld, unit) in SPEC_OPTIONS.items():
-        v = getattr(args, opt)
-        if v is not None:
-            if not (math.isfinite(v) and v >= 0.0):
-                raise CliError(f"--{opt.replace('_', '-')} must be finite and >= 0, got {v}")
-            over[fld] = v * unit
-    return specs.with_(**over) if over else specs
-
-
 def scenario_from_args(args) -> tuple[Scenario, list[Curve]]:
     """Resolve defaults (--paper or the package defaults), validate, build the curves."""
     base = PAPER if args.paper else DEFAULTS
@@ -751,7 +737,7 @@ def scenario_from_args(args) -> tuple[Scenario, list[Curve]]:
             raise CliError(f"{name} must be 3 finite angles, got {list(v)}")
     fixed = args.fixed_biases if args.fixed_biases is not None else base["fixed_biases"]
     scn = Scenario(runs=args.runs, duration=args.duration, rate=rate, latitude_deg=lat,
-                   height_m=height, specs=_specs(args, grade), grade=grade, fixed_biases=fixed,
+                   height_m=height, specs=specs_from_args(args, grade), grade=grade, fixed_biases=fixed,
                    noise=not args.noise_free, sway=sway, sway_amplitude=amp,
                    true_rpy_deg=truth, initial_error_deg=init, seed=args.seed, every=args.every)
     model = pick("model")

@@ -86,8 +86,9 @@ from .bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks, che
                     read_message_chunks)
 from .cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
 from .estimator import AlignConfig, Aligner
-from .align_node import BACKWARD_JUMP_CONFIRM, NODE_PARAMS
-from .outputs import WARN, StampClock, diagnostic_status, euler_deg, imu_output, imu_sample
+from .align_node import NODE_PARAMS
+from .outputs import (WARN, BackwardJump, StampClock, diagnostic_status, euler_deg, imu_output,
+                      imu_sample)
 from .params import NODE_NAME, config_from_params, defaults, load_params_yaml
 from .rotation import attitude_error, dcm_from_quat, rpy_from_dcm, so3_exp, so3_log
 from .specs import DEG, DPH, DPSH, UG, UG_PSHZ
@@ -381,7 +382,7 @@ class ReplaySession:
         self.last_header: tuple[int, int, str] | None = None   # of the last accepted sample
         self.last_frame_id = ""                                 # of the last accepted sample
         self._aligned_pub: bool | None = None
-        self._backward_run = 0
+        self._jump_back = BackwardJump()
         self.resets = 0
         self.last_reset_reason = ""
         self._rejected_seen = 0
@@ -424,7 +425,7 @@ class ReplaySession:
         """
         al = self.al
         t, w, f = imu_sample(msg, self.clock)
-        if self._time_went_back(t):
+        if self._jump_back(self.al, t):
             self._restart(f"input stamps jumped back by {al.t_last - t:.3f} s")
         n_rej = sum(al.rejected.values())
         al.update(t, w, f)
@@ -486,7 +487,7 @@ class ReplaySession:
         cut = np.zeros(n + 1, dtype=bool)
         cut[0] = cut[n] = True
         # t_last never exceeds the largest stamp seen: a sample not below that bound minus
-        # max_gap cannot be a backward jump; the others go alone through _time_went_back
+        # max_gap cannot be a backward jump; the others go alone through the BackwardJump check
         finite = np.isfinite(t)
         tl = al.t_last
         bound = np.maximum.accumulate(np.concatenate((
@@ -512,10 +513,10 @@ class ReplaySession:
         bounds = np.flatnonzero(cut).tolist()
         for a, b in zip(bounds, bounds[1:]):
             if back[a]:
-                if self._time_went_back(float(t[a])):
+                if self._jump_back(al, float(t[a])):
                     self._restart(f"input stamps jumped back by {al.t_last - float(t[a]):.3f} s")
             else:
-                self._backward_run = 0
+                self._jump_back.run = 0
             n_rej = sum(al.rejected.values())
             before = al.aligned
             al.flips = flips = []
@@ -559,17 +560,9 @@ class ReplaySession:
         if self.last_ns is not None:
             self._take(self.truth.resolve(self.last_ns))
 
-    # -- node behaviour (align_node._time_went_back, _restart) -------------------------------
-    def _time_went_back(self, t: float) -> bool:
-        last = self.al.t_last
-        if last is None or not math.isfinite(t) or t >= last - self.config.max_gap:
-            self._backward_run = 0
-            return False
-        self._backward_run += 1
-        return self._backward_run >= BACKWARD_JUMP_CONFIRM
-
+    # -- node behaviour (align_node._restart) ---------------------------------------------
     def _restart(self, why: str):
-        self._backward_run = 0
+        self._jump_back.run = 0
         self.al.reset()
         self.resets += 1
         self.last_reset_reason = why

@@ -77,9 +77,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def specs_from_args(args):
-    """Grade preset with the per-sensor overrides (params.py units)."""
-    specs = grade_specs(args.grade)
+def specs_from_args(args, grade: str | None = None):
+    """Grade preset (``grade`` or ``args.grade``) with the per-sensor overrides given as
+    --gyro-bias etc. in params.py units."""
+    specs = grade_specs(args.grade if grade is None else grade)
     over = {}
     for opt, (fld, unit) in SPEC_OPTIONS.items():
         v = getattr(args, opt)

@@ -28,7 +28,7 @@ from std_srvs.srv import Trigger
 from ros_helpers import (LATCHED, NodeProcess, Probe, diag_values, latest_diag, stamp_ns,
                          wait_until)
 from sins_align import align_node
-from sins_align.outputs import covariance_is_valid
+from sins_align.outputs import BACKWARD_JUMP_CONFIRM, covariance_is_valid
 from sins_align.params import PARAMS, config_from_params, load_params_yaml
 from sins_align.rotation import attitude_error, dcm_from_quat, rpy_from_dcm
 from sins_align.sim import SwayProfile, simulate
@@ -453,7 +453,7 @@ def test_stamps_jumping_back_restart_the_alignment(bad):
         d = latest_diag(bad.diags, BAD_STATUS)
         return d if d and d["resets"] == "1" and int(d["samples_used"]) > 0 else None
     d = wait_until(restarted, 10.0, "a restart after the stamps jumped back")
-    n_confirm = align_node.BACKWARD_JUMP_CONFIRM
+    n_confirm = BACKWARD_JUMP_CONFIRM
     back = t_end - (t0 + a.t[n_confirm - 1])
     assert f"input stamps jumped back by {back:.3f} s" in d["last_reset_reason"], d
     # the confirming sample starts the new run; the ones before it were plain rejections
