@@ -275,92 +275,132 @@ class AlignmentFilter:
             self.step(float(dts[k]), w[k], f[k])
 
     # ------------------------------------------------------------------ fast path
-    def run_fast(self, dt: float, w: np.ndarray, f: np.ndarray):
-        """Many samples at a constant interval ``dt``: same result as :meth:`run`.
+    def run_fast(self, dt, w: np.ndarray, f: np.ndarray):
+        """Many samples: same result as :meth:`run`, much faster.
 
-        Between updates the mechanization is integrated in closed form from vectorised
-        sums (:mod:`sins_align.preint`), and the covariance jumps by precomputed m-step
-        transition matrices, so the Python work is per update, not per sample. The update
-        schedule, the backtrack and every update are those of :meth:`run`; the results
-        agree to rounding (test_fast_path). Models other than 'constant' (whose F depends
-        on the state at every sample) go through :meth:`run`.
+        ``dt`` is one interval for all samples, or one per sample (T,) for jittered stamps
+        (each within 40 % of their mean). Between updates the mechanization is integrated in
+        closed form from vectorised sums (:mod:`sins_align.preint`) and the covariance jumps
+        over the whole interval, so the Python work is per update, not per sample. The
+        update schedule, the backtrack and every update are those of :meth:`run`; the
+        results agree to rounding (test_fast_path). Models other than 'constant' (whose F
+        depends on the state at every sample) go through :meth:`run`.
         """
         w = np.asarray(w, dtype=float).reshape(len(w), self.n, 3)
         f = np.asarray(f, dtype=float).reshape(len(f), self.n, 3)
-        dt = float(dt)
-        if self.config.model != "constant":
-            self.run(dt, w, f)
+        dts = np.broadcast_to(np.asarray(dt, dtype=float), (len(w),))
+        if self.config.model != "constant" or len(w) == 0:
+            self.run(dts, w, f)
             return
+        mean = float(dts.mean())
+        if np.all(np.abs(dts - mean) <= 1e-9 * mean):
+            dts = mean                          # uniform: the cached m-step schedule applies
+        elif not np.all(np.abs(dts - mean) <= 0.4 * mean):
+            raise ValueError("run_fast: sample intervals vary by more than 40 %")
         self.fast = True
         k, T = 0, len(w)
         while k < T:
             end = T
             if self._buf is not None and not self.backtracked:
-                left = self.config.backtrack_time - 0.5 * dt - self.t_int
-                end = min(T, k + max(1, int(math.ceil(left / dt - 1e-9))))
-                self._buf.extend(dt, w[k:end], f[k:end])
-            self._advance_block(dt, w[k:end], f[k:end], track_B=not self.backtracked
-                                and self._buf is not None, offset=k)
+                end = k + self._samples_until(self.config.backtrack_time - self.t_int,
+                                              _part(dts, k, T))
+                self._buf.extend(_part(dts, k, end), w[k:end], f[k:end])
+            self._advance_block(_part(dts, k, end), w[k:end], f[k:end],
+                                track_B=not self.backtracked and self._buf is not None,
+                                offset=k)
             k = end
-            if self._backtrack_due(dt):
+            if self._backtrack_due(_last(dts, end)):
                 self.backtrack()
                 if self.on_update is not None:
                     self.on_update(end - 1)
 
+    @staticmethod
+    def _samples_until(left: float, dts) -> int:
+        """How many samples until an accumulated time reaches ``left`` (the per-sample
+        rule: t + dt_j >= left - dt_j / 2), at least 1, at most all of them."""
+        if np.ndim(dts) == 0:
+            return max(1, int(math.ceil((left - 0.5 * dts) / dts - 1e-9)))
+        key = np.cumsum(dts) + 0.5 * dts            # increasing: intervals within 40 %
+        return min(len(dts), int(np.searchsorted(key, left - 1e-12)) + 1)
+
     def _period(self) -> float:
         return self.fine_period if self.fine else self.config.coarse_update_period
 
-    def _advance_block(self, dt: float, w, f, track_B: bool = False, offset: int | None = None):
-        """Samples at a constant dt through the mechanization and the updates they contain."""
+    def _advance_block(self, dt, w, f, track_B: bool = False, offset: int | None = None):
+        """Samples through the mechanization and the updates they contain.
+
+        ``dt``: one interval (float) or one per sample (T,).
+        """
         period = self._period()
-        thr = period - 0.5 * dt
-        first = max(1, int(math.ceil((thr - self.t_acc) / dt - 1e-9)))
-        full = max(1, int(math.ceil(thr / dt - 1e-9)))
         T = len(w)
-        if first >= T:
-            lengths = [T]
-        else:
-            n_full, rest = divmod(T - first, full)
-            lengths = [first] + [full] * n_full + ([rest] if rest else [])
+        uniform = np.ndim(dt) == 0
+        lengths = []
+        left, k = period - self.t_acc, 0
+        while k < T:
+            m = min(T - k, self._samples_until(left, _part(dt, k, T)))
+            lengths.append(m)
+            k += m
+            left = period
         lengths = np.array(lengths)
-        dcm_end, A, V = preintegrate(dt, w, f, lengths, self._W, self.fine)
+        dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
         KT, K2T = self._K.T, self._K2.T
         H = measurement_matrix("constant")
         for i, m in enumerate(lengths.tolist()):
+            Ti = m * dt if uniform else float(segT[i])
+            dti = dt if uniform else float(dt[int(lengths[:i + 1].sum()) - 1])
             C0, v0 = self.C, self.v
             C0T = C0.mT
             a = (A[i][:, :, None, :] @ C0T)[:, :, 0]
-            self.v = v0 + a[0] + a[1] @ KT + a[2] @ K2T + self.g_n * (m * dt)
-            self.C = self._earth_rot(m, dt) @ C0 @ dcm_end[i]
+            self.v = v0 + a[0] + a[1] @ KT + a[2] @ K2T + self.g_n * Ti
+            E = self._earth_rot(m, dt) if uniform else so3_exp(-self.w_ie * Ti)
+            self.C = E @ C0 @ dcm_end[i]
             if track_B:
                 self._B = self._B @ dcm_end[i]
-            self.t_int += m * dt
+            self.t_int += Ti
             if self.fine:
                 b = (V[i][:, :, None, :] @ C0T)[:, :, 0]
-                self.v_sum = self.v_sum + v0 * (m * dt) + b[0] + b[1] @ KT + b[2] @ K2T \
-                    + self.g_n * (dt * dt * m * (m + 1) / 2.0)
-            self.t_acc += m * dt
-            if self.t_acc < thr:                    # partial interval: no update yet
-                Phi, Qd, Gm = self._disc_m(m, dt)
+                self.v_sum = self.v_sum + v0 * Ti + b[0] + b[1] @ KT + b[2] @ K2T \
+                    + self.g_n * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i]))
+            self.t_acc += Ti
+            jumps = (lambda: self._disc_m(m, dt)) if uniform else (
+                lambda: self._disc_var(_part(dt, int(lengths[:i].sum()),
+                                             int(lengths[:i + 1].sum()))))
+            if self.t_acc < period - 0.5 * dti:     # partial interval: no update yet
+                Phi, Qd, Gm = jumps()
                 self.P = Phi @ self.P @ Phi.T + Qd
                 self.S = Phi @ self.S + Gm
                 continue
             if self.fine:
                 Ha = self._cache.get(("Ha", self.t_acc))
                 if Ha is None:
-                    Ha = self._cache[("Ha", self.t_acc)] = averaged_measurement_matrix(
-                        H, self._Fconst, self.t_acc)
-                Kg, Sinv = self._cov_block(m, dt, Ha, 1.0)
+                    Ha = averaged_measurement_matrix(H, self._Fconst, self.t_acc)
+                    if uniform:
+                        self._cache[("Ha", self.t_acc)] = Ha
+                Kg, Sinv = self._cov_block(m, dt, Ha, 1.0, jumps)
                 self._apply(self.v_sum / self.t_acc, Kg, Sinv)
                 self.v_sum = np.zeros((self.n, 3))
             else:
-                Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc)
+                Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc, jumps)
                 self._apply(self.v, Kg, Sinv)
             self.t_acc = 0.0
             if self.on_update is not None and offset is not None:
                 self.on_update(offset + int(lengths[:i + 1].sum()) - 1)
 
-    def _cov_block(self, m: int, dt: float, H, scale: float):
+    def _disc_var(self, dts: np.ndarray):
+        """Transition, process noise and bias input over samples of varying interval: what
+        the per-sample recursion composes to (Phi and Qd exactly, the bias input as its
+        Riemann sum, both to fourth order in F)."""
+        T = float(dts.sum())
+        Phi, Qd = discretize(self._Fconst, self.Qc, T)
+        r = T - np.cumsum(dts)                      # time left after each sample
+        F, G = self._Fconst, self.Gamma
+        FG = F @ G
+        F2G = F @ FG
+        Gm = G * T + FG * float(r @ dts) + F2G * float((r * r) @ dts / 2.0) \
+            + F @ F2G * float((r ** 3) @ dts / 6.0)
+        return Phi, Qd, Gm
+
+    def _cov_block(self, m: int, dt, H, scale: float, jumps=None):
         """Propagate P and S over m samples and do the covariance part of an update.
 
         With one covariance shared by all runs (the constant model: it does not depend on
@@ -368,7 +408,8 @@ class AlignmentFilter:
         a bounded module-level cache: a second run of the same configuration (the next
         bag, the next Monte Carlo batch) reuses the whole gain schedule.
         """
-        shared = self.P.shape[0] == 1 and self.S.shape[0] == 1 and self.R.shape[0] == 1
+        shared = (self.P.shape[0] == 1 and self.S.shape[0] == 1 and self.R.shape[0] == 1
+                  and np.ndim(dt) == 0)
         if shared:
             key = (self._cfg_key, self.P.tobytes(), self.S.tobytes(), self.R.tobytes(),
                    H.tobytes(), m, dt, scale)
@@ -376,7 +417,7 @@ class AlignmentFilter:
             if hit is not None:
                 self.P, self.S, K, Sinv = hit
                 return K, Sinv
-        Phi, Qd, Gm = self._disc_m(m, dt)
+        Phi, Qd, Gm = jumps() if jumps is not None else self._disc_m(m, dt)
         self.P = Phi @ self.P @ Phi.T + Qd
         self.S = Phi @ self.S + Gm
         K, Sinv = self._gain(H, scale)
@@ -532,10 +573,12 @@ class AlignmentFilter:
         self.stage = "fine"
         self.backtracked = True
         self._buf = None
-        uniform = len(dt) > 0 and not gap.any() and np.all(
-            np.abs(dt - dt.mean()) <= 1e-6 * dt.mean())
-        if self.fast_backtrack and uniform and c.model == "constant":
-            self._advance_block(float(dt.mean()), w, f)
+        fits = len(dt) > 0 and not gap.any() and np.all(
+            np.abs(dt - dt.mean()) <= 0.4 * dt.mean())
+        if self.fast_backtrack and fits and c.model == "constant":
+            mean = float(dt.mean())
+            uniform = np.all(np.abs(dt - mean) <= 1e-9 * mean)
+            self._advance_block(mean if uniform else dt, w, f)
             return
         for k in range(len(dt)):
             self._advance(float(dt[k]), w[k], f[k], float(gap[k]))
@@ -813,8 +856,9 @@ class Aligner:
 
     def _clean_run(self, t, w, f, k) -> int:
         """End index of the run of samples from k that the per-sample checks would all accept
-        as ordinary samples at one constant interval (no gap, no rejection, no units-check
-        window closing): those can take the filter's fast path with identical results."""
+        as ordinary samples (intervals within 40 % of nominal, no gap, no rejection, no
+        units-check window closing): those can take the filter's fast path with the same
+        results."""
         c = self.config
         if (c.model != "constant" or self.t_last is None or self.nominal_dt is None
                 or self.units_suspect or self._t_prev_raw != self.t_last
@@ -828,7 +872,7 @@ class Aligner:
         ok = (np.isfinite(tt) & np.isfinite(w[k:k + len(tt)]).all(1)
               & np.isfinite(f[k:k + len(tt)]).all(1)
               & (dts >= c.min_dt_ratio * nom) & (dts <= c.gap_ratio * nom) & (dts <= c.max_gap)
-              & (np.abs(dts - dts[0]) <= 1e-6 * dts[0])
+              & (np.abs(dts - nom) <= 0.4 * nom)
               & (fn >= 0.25 * self.g) & (np.abs(fn - self.g) <= c.specific_force_tolerance * self.g)
               & (wn <= c.max_angular_rate))
         m = len(tt) if ok.all() else int(np.argmin(ok))
@@ -853,7 +897,7 @@ class Aligner:
 
         self.filter.on_update = check
         try:
-            self.filter.run_fast(float(np.mean(dts)), w, f)
+            self.filter.run_fast(dts, w, f)
         finally:
             self.filter.on_update = None
         self.t_last = float(t[-1])
@@ -975,6 +1019,15 @@ class Aligner:
         }
 
 
+def _part(dt, a: int, b: int):
+    """dt for samples a:b (a float stays a float)."""
+    return dt if np.ndim(dt) == 0 else dt[a:b]
+
+
+def _last(dt, end: int) -> float:
+    return float(dt) if np.ndim(dt) == 0 else float(dt[end - 1])
+
+
 class _SampleBuffer:
     """Growable store of accepted samples for the backtrack: dt, gap (M,), w, f (M, N, 3)."""
 
@@ -998,7 +1051,8 @@ class _SampleBuffer:
         while self._n + m > len(self._t):
             self._t = np.concatenate([self._t, np.empty_like(self._t)])
             self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
-        self._t[self._n:self._n + m] = (dt, 0.0)
+        self._t[self._n:self._n + m, 0] = dt
+        self._t[self._n:self._n + m, 1] = 0.0
         self._wf[self._n:self._n + m, :, :3] = w
         self._wf[self._n:self._n + m, :, 3:] = f
         self._n += m

@@ -72,24 +72,27 @@ def prefix_rotations(dt, w: np.ndarray) -> tuple:
     return q
 
 
-def preintegrate(dt: float, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
+def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
                  w_ie_mag: float, mean_weights: bool):
     """Attitude-independent sums of each interval.
 
     Parameters
     ----------
-    dt : float, s — the (constant) sample interval.
+    dt : float, or ndarray (T,) — s, the sample interval(s).
     w, f : ndarray (T, N, 3) — rates (rad/s) and specific forces (m/s^2), the intervals
         laid end to end.
     lengths : ndarray (S,) int — samples per interval (sum = T).
     w_ie_mag : float, rad/s — Earth rate magnitude.
-    mean_weights : also return the sums weighted by (m - i + 1) dt for the interval mean.
+    mean_weights : also return the sums weighted by the time left in the interval, for
+        the interval's mean velocity.
 
     Returns
     -------
     dcm_end : ndarray (S, N, 3, 3) — Q_m as a DCM (body rotation over the interval).
     A : ndarray (S, 3, N, 3) — [A0, Aa, Ab] (m/s).
     V : ndarray (S, 3, N, 3) or None — the mean-velocity sums [V0, Va, Vb] (m).
+    seg_t : ndarray (S,) — duration of each interval, s.
+    s_dt : ndarray (S,) — sum over the interval of (time since its start) x dt, s^2.
     """
     S, L = len(lengths), int(lengths.max())
     T, N = w.shape[0], w.shape[1]
@@ -100,18 +103,23 @@ def preintegrate(dt: float, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     idx = np.where(valid, idx, T)                     # T = padding row
     wp = np.concatenate([w, np.zeros((1, N, 3))])[idx]       # (S, L, N, 3)
     fp = np.concatenate([f, np.zeros((1, N, 3))])[idx]
-    q = prefix_rotations(dt, wp)
-    u = _qrot(q, fp) * dt                              # (S, L, N, 3)
-    s = (pos + 1.0) * dt
-    ws = np.stack([np.ones(L), np.sin(w_ie_mag * s), 1.0 - np.cos(w_ie_mag * s)])  # (3, L)
-    A = np.einsum("kl,slnj->sknj", ws, u)
+    if np.ndim(dt) == 0:
+        dtp = np.where(valid, float(dt), 0.0)
+    else:
+        dtp = np.concatenate([np.asarray(dt, dtype=float), [0.0]])[idx] * valid
+    q = prefix_rotations(dtp[:, :, None], wp)
+    u = _qrot(q, fp) * dtp[:, :, None, None]          # (S, L, N, 3)
+    s = np.cumsum(dtp, axis=1)                        # time since the interval's start
+    ws = np.stack([np.ones_like(s), np.sin(w_ie_mag * s), 1.0 - np.cos(w_ie_mag * s)])
+    A = np.einsum("ksl,slnj->sknj", ws, u)
+    seg_t = s[:, -1]
     V = None
     if mean_weights:
-        c = (lengths[:, None] - pos[None, :]) * dt * valid        # (S, L)
-        V = np.einsum("kl,sl,slnj->sknj", ws, c, u)
+        c = (seg_t[:, None] - s + dtp) * valid        # time from each sample to the end
+        V = np.einsum("ksl,sl,slnj->sknj", ws, c, u)
     last = (np.arange(S), lengths - 1)
     dcm_end = dcm_from_quat(np.stack([comp[last] for comp in q], axis=-1))
-    return dcm_end, A, V
+    return dcm_end, A, V, seg_t, (s * dtp).sum(axis=1)
 
 
 def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndarray,

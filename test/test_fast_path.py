@@ -69,3 +69,18 @@ def test_other_models_fall_back_to_reference():
         cfg = AlignConfig(latitude_deg=10.0, model=model, backtrack_time=30.0)
         ref, fast = pair(cfg, np.eye(3)[None], s)
         assert np.array_equal(ref.C, fast.C)
+
+
+@pytest.mark.parametrize("coarse", [0.1, 0.0])
+def test_fast_equals_reference_with_jittered_intervals(coarse):
+    """Sample intervals jittered by +-30 % (host-stamped ROS drivers): the fast path with
+    per-sample intervals equals the per-sample filter, backtrack and updates included."""
+    s = simulate(100, 100, 34.0, rpy_deg=(10, -5, 60), sway="car", seed=4)
+    dts = 0.01 * (1.0 + 0.3 * np.random.default_rng(7).uniform(-1, 1, len(s.t)))
+    C0 = (s.C0 @ dcm_from_rpy(np.array([60, -40, 120]) * DEG).T)[None]
+    cfg = AlignConfig(latitude_deg=34.0, coarse_update_period=coarse, backtrack_time=40.0)
+    ref, fast = AlignmentFilter(cfg, C0, fast_backtrack=False), AlignmentFilter(cfg, C0)
+    ref.run(dts, s.gyro, s.accel)
+    for k in range(0, len(s.t), 2500):
+        fast.run_fast(dts[k:k + 2500], s.gyro[k:k + 2500], s.accel[k:k + 2500])
+    assert_same(ref, fast)
