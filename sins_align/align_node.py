@@ -118,8 +118,8 @@ def _make_node_class():
     from std_srvs.srv import Trigger
 
     from .estimator import Aligner
-    from .outputs import (WARN, BackwardJump, StampClock, diagnostic_status, euler_deg,
-                          imu_output, imu_sample)
+    from .outputs import (BackwardJump, StampClock, euler_deg, imu_output, imu_sample,
+                          node_diagnostics)
 
     class AlignNode(Node):
         """ROS wrapper of :class:`Aligner`: messages in, messages out, nothing else."""
@@ -368,18 +368,8 @@ def _make_node_class():
                 self._input_rate = (self._rx_count - n0) / (now - t0)
             self._rate_mark = (now, self._rx_count)
             al = self.aligner
-            level, message, values = diagnostic_status(al, self._input_rate)
-            rejected = sum(al.rejected.values())
-            recent = rejected - self._rejected_seen if rejected >= self._rejected_seen else rejected
-            self._rejected_seen = rejected
-            if recent and level < WARN:
-                level = WARN
-                message += f"; {recent} sample(s) rejected ({al.last_reject})"
-            values = values + [
-                ("data_rate_hz", "" if al.nominal_dt is None else f"{1.0 / al.nominal_dt:.2f}"),
-                ("resets", str(self.resets)),
-                ("last_reset_reason", self.last_reset_reason),
-            ]
+            level, message, values, self._rejected_seen = node_diagnostics(
+                al, self._input_rate, self._rejected_seen, self.resets, self.last_reset_reason)
             st = DiagnosticStatus(
                 level=bytes([level]), name=f"{self.get_name()}: alignment", message=message,
                 hardware_id=self.last_header.frame_id if self.last_header else "",

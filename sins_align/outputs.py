@@ -100,6 +100,30 @@ def diagnostic_status(al: Aligner, input_rate_hz: float | None = None
     return level, msg, values
 
 
+def node_diagnostics(al: Aligner, input_rate_hz: float | None, rejected_seen: int,
+                     resets: int, last_reset_reason: str):
+    """:func:`diagnostic_status` plus what align_node reports (the replay writes the same):
+    WARN when samples were rejected since the last report (``rejected_seen`` = the total
+    then), the data rate from the stamps, and the restarts.
+
+    Returns
+    -------
+    level, message, values as :func:`diagnostic_status`, and the rejected total now.
+    """
+    level, message, values = diagnostic_status(al, input_rate_hz)
+    rejected = sum(al.rejected.values())
+    recent = rejected - rejected_seen if rejected >= rejected_seen else rejected
+    if recent and level < WARN:
+        level = WARN
+        message += f"; {recent} sample(s) rejected ({al.last_reject})"
+    values = values + [
+        ("data_rate_hz", "" if al.nominal_dt is None else f"{1.0 / al.nominal_dt:.2f}"),
+        ("resets", str(resets)),
+        ("last_reset_reason", last_reset_reason),
+    ]
+    return level, message, values, rejected
+
+
 def covariance_is_valid(cov9) -> bool:
     """True if a 9-value covariance is finite, symmetric and positive semi-definite."""
     c = np.asarray(cov9, dtype=float).reshape(3, 3)

@@ -87,8 +87,8 @@ from .bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks, che
 from .cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
 from .estimator import AlignConfig, Aligner
 from .align_node import NODE_PARAMS
-from .outputs import (WARN, BackwardJump, StampClock, diagnostic_status, euler_deg, imu_output,
-                      imu_sample)
+from .outputs import (BackwardJump, StampClock, euler_deg, imu_output, imu_sample,
+                      node_diagnostics)
 from .params import NODE_NAME, config_from_params, defaults, load_params_yaml
 from .rotation import attitude_error, dcm_from_quat, rpy_from_dcm, so3_exp, so3_log
 from .specs import DEG, DPH, DPSH, UG, UG_PSHZ
@@ -593,18 +593,8 @@ class ReplaySession:
         if self._diag_prev is not None and ns > self._diag_prev[0]:
             rate = (self.samples - self._diag_prev[1]) / ((ns - self._diag_prev[0]) / NS)
         self._diag_prev = (ns, self.samples)
-        level, text, values = diagnostic_status(al, rate)
-        rejected = sum(al.rejected.values())
-        recent = rejected - self._rejected_seen if rejected >= self._rejected_seen else rejected
-        self._rejected_seen = rejected
-        if recent and level < WARN:
-            level = WARN
-            text += f"; {recent} sample(s) rejected ({al.last_reject})"
-        values = values + [
-            ("data_rate_hz", "" if al.nominal_dt is None else f"{1.0 / al.nominal_dt:.2f}"),
-            ("resets", str(self.resets)),
-            ("last_reset_reason", self.last_reset_reason),
-        ]
+        level, text, values, self._rejected_seen = node_diagnostics(
+            al, rate, self._rejected_seen, self.resets, self.last_reset_reason)
         frame = self.last_header[2] if self.last_header else ""
         sec, nsec = divmod(ns, NS)
         arr = m.diagnostic_array(m.header(sec, nsec, frame),
