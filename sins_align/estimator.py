@@ -33,7 +33,7 @@ from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
 from .kalman import _EYE6, discretize, inv3, joseph_update
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
-from .preint import earth_poly, open_loop_velocity, prefix_rotations, preintegrate
+from .preint import earth_poly, open_loop_velocity, preintegrate, total_rotation
 from .rotation import dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm, so3_exp
 from .specs import DEG, SensorSpecs, grade_specs, limit_covariance
 
@@ -345,9 +345,10 @@ class AlignmentFilter:
         dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
         KT, K2T = self._K.T, self._K2.T
         H = measurement_matrix("constant")
+        ends = np.cumsum(lengths).tolist()
         for i, m in enumerate(lengths.tolist()):
             Ti = m * dt if uniform else float(segT[i])
-            dti = dt if uniform else float(dt[int(lengths[:i + 1].sum()) - 1])
+            dti = dt if uniform else float(dt[ends[i] - 1])
             C0, v0 = self.C, self.v
             C0T = C0.mT
             a = (A[i][:, :, None, :] @ C0T)[:, :, 0]
@@ -363,8 +364,7 @@ class AlignmentFilter:
                     + self.g_n * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i]))
             self.t_acc += Ti
             jumps = (lambda: self._disc_m(m, dt)) if uniform else (
-                lambda: self._disc_var(_part(dt, int(lengths[:i].sum()),
-                                             int(lengths[:i + 1].sum()))))
+                lambda: self._disc_var(_part(dt, ends[i] - m, ends[i])))
             if self.t_acc < period - 0.5 * dti:     # partial interval: no update yet
                 Phi, Qd, Gm = jumps()
                 self.P = Phi @ self.P @ Phi.T + Qd
@@ -384,7 +384,7 @@ class AlignmentFilter:
                 self._apply(self.v, Kg, Sinv)
             self.t_acc = 0.0
             if self.on_update is not None and offset is not None:
-                self.on_update(offset + int(lengths[:i + 1].sum()) - 1)
+                self.on_update(offset + ends[i] - 1)
 
     def _disc_var(self, dts: np.ndarray):
         """Transition, process noise and bias input over samples of varying interval: what
@@ -1088,8 +1088,7 @@ class _UnitsMonitor:
 
     def add_block(self, dts, w, f):
         """Samples that do not close the window (Aligner._clean_run guarantees it)."""
-        q = prefix_rotations(dts[None, :, None], w[None, :, None])
-        self.B = self.B @ dcm_from_quat(np.array([c[0, -1, 0] for c in q]))
+        self.B = self.B @ dcm_from_quat(total_rotation(dts, w))
         T = self.T + np.cumsum(dts)
         fd = f * dts[:, None]
         self.f_head += fd[T <= 1.0].sum(0)

@@ -122,6 +122,18 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     return dcm_end, A, V, seg_t, (s * dtp).sum(axis=1)
 
 
+def total_rotation(dt, w: np.ndarray) -> np.ndarray:
+    """Quaternion [x, y, z, w] of exp(w_1 dt_1) ... exp(w_T dt_T), w (T, 3): a pairwise
+    product tree, about 2T quaternion products instead of the prefix scan's T log T."""
+    q = np.stack(_qexp(w * np.asarray(dt)[..., None]), axis=-1)
+    while len(q) > 1:
+        if len(q) % 2:
+            q = np.concatenate([q, [[0.0, 0.0, 0.0, 1.0]]])
+        a, b = q[0::2], q[1::2]
+        q = np.stack(_qmul(tuple(a.T), tuple(b.T)), axis=-1)
+    return q[0]
+
+
 def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndarray,
                        w_ie: np.ndarray, g_n: np.ndarray) -> np.ndarray:
     """Velocity of the damped mechanization without feedback, at every sample.
