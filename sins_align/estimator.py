@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
-from .kalman import _EYE6, discretize, inv3, joseph_update
+from .kalman import discretize, inv3, joseph_update, nis
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
 from .preint import earth_poly, open_loop_velocity, preintegrate, total_rotation
@@ -199,8 +199,7 @@ class AlignmentFilter:
         self.g = -self.g_n[2]
         sp = c.specs
         self.Qc = np.diag([sp.gyro_arw ** 2] * 3 + [sp.accel_vrw ** 2] * 3)
-        self.bias_cov = np.diag([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
-        self._bias_var = np.diag(self.bias_cov).copy()
+        self._bias_var = np.array([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
         self.Gamma = bias_input_matrix(c.model)
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
         self._K, self._W = earth_poly(self.w_ie)
@@ -247,7 +246,11 @@ class AlignmentFilter:
 
     def total_covariance(self) -> np.ndarray:
         """Noise covariance plus the bias-induced part ``S Sigma_b S^T``, (1|N, 6, 6)."""
-        return self.P + (self.S * self._bias_var) @ self.S.mT
+        return self._with_bias(self.P, self.S)
+
+    def _with_bias(self, P, S):
+        """P + S Sigma_b S^T (Sigma_b diagonal: the bias variances of the specs)."""
+        return P + (S * self._bias_var) @ S.mT
 
     # ------------------------------------------------------------------ one sample
     def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0):
@@ -516,18 +519,14 @@ class AlignmentFilter:
         (with the bias part) for the NIS. Updates P and S."""
         R = self.R * scale
         Ptot = self.total_covariance()
-        PHt = self.P @ H.mT
-        K = PHt @ inv3(H @ PHt + R)
-        IKH = _EYE6 - K @ H
-        P = IKH @ self.P @ IKH.mT + K @ R @ K.mT
-        self.P = 0.5 * (P + P.mT)
+        self.P, K = joseph_update(self.P, H, R)
         self.S = self.S - K @ (H @ self.S)
         return K, inv3(H @ Ptot @ H.mT + R)
 
     def _apply(self, z, K, Sinv):
         """State part of an update: feedback of K z, NIS bookkeeping, re-inflation."""
         x = (K @ z[..., None])[..., 0]
-        r = np.einsum("...i,...ij,...j->...", z, Sinv, z) / 3.0
+        r = nis(z, Sinv) / 3.0
         self.C, self.v = apply_correction(self.config.model, self.C, self.v, x)
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
@@ -614,14 +613,14 @@ class AlignmentFilter:
         for i in range(int(horizon / T)):
             P = Phi @ P @ Phi.T + Qd
             S = Phi @ S + Gd
-            _, P, K = joseph_update(P, np.zeros((P.shape[0], 3)), H, self.R)
+            P, K = joseph_update(P, H, self.R)
             S = S - K @ (H @ S)
             if i % 25 == 24:                      # stop once the attitude std has settled
-                d = np.diagonal(P + (S * self._bias_var) @ S.mT, axis1=1, axis2=2)[:, :3]
+                d = np.diagonal(self._with_bias(P, S), axis1=1, axis2=2)[:, :3]
                 if prev is not None and np.all(np.abs(d - prev) <= 1e-6 * d):
                     break
                 prev = d
-        tot = P + S @ self.bias_cov @ np.swapaxes(S, -1, -2)
+        tot = self._with_bias(P, S)
         out = np.broadcast_to(np.sqrt(np.diagonal(tot[:, :3, :3], axis1=1, axis2=2)),
                               (self.n, 3))
         _SCHEDULE_CACHE[key] = out

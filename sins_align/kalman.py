@@ -12,9 +12,6 @@ def _T(a: np.ndarray) -> np.ndarray:
     return np.swapaxes(a, -1, -2)
 
 
-_EYE6 = np.eye(6)
-
-
 def inv3(S: np.ndarray) -> np.ndarray:
     """Inverse of 3x3 matrices (..., 3, 3); a single one (shape (3, 3) or (1, 3, 3)) by the
     adjugate in scalar arithmetic, which is several times faster than LAPACK for one 3x3."""
@@ -59,33 +56,31 @@ def discretize(F: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray, np
     return Phi, 0.5 * (Qd + _T(Qd))
 
 
-def joseph_update(P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray):
-    """Kalman measurement update in Joseph form for an error state with zero prior mean.
+def joseph_update(P: np.ndarray, H: np.ndarray, R: np.ndarray):
+    """Covariance part of a Kalman update, Joseph form (error state with zero prior mean).
 
     Parameters
     ----------
     P : ndarray, shape (..., n, n) — prior covariance.
-    nu : ndarray, shape (..., m) — innovation ``z - H x_prior`` (``x_prior`` = 0 after feedback).
     H : ndarray, shape (..., m, n) ; R : ndarray, shape (..., m, m).
 
     Returns
     -------
-    x : ndarray (..., n) — posterior error-state estimate.
     P : ndarray (..., n, n) — posterior covariance (symmetrised).
-    K : ndarray (..., n, m) — gain.
+    K : ndarray (..., n, m) — gain; the error-state estimate is ``K @ innovation``.
     """
     PHt = P @ H.mT
-    K = PHt @ np.linalg.inv(H @ PHt + R)
+    K = PHt @ inv3(H @ PHt + R) if H.shape[-2] == 3 else PHt @ np.linalg.inv(H @ PHt + R)
     IKH = np.eye(P.shape[-1]) - K @ H
     P = IKH @ P @ IKH.mT + K @ R @ K.mT
-    x = (K @ nu[..., None])[..., 0]
-    return x, 0.5 * (P + P.mT), K
+    return 0.5 * (P + P.mT), K
 
 
-def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """Normalised innovation squared ``nu^T S^-1 nu``, shape (...,).
+def nis(nu: np.ndarray, S_inv: np.ndarray) -> np.ndarray:
+    """Normalised innovation squared ``nu^T S^-1 nu``, shape (...,), from the inverse
+    innovation covariance.
 
     Chi-square with m degrees of freedom when the model fits the data; large values mean
     motion, a bad sensor or a wrong noise setting.
     """
-    return np.einsum("...i,...ij,...j->...", nu, np.linalg.inv(S), nu)
+    return np.einsum("...i,...ij,...j->...", nu, S_inv, nu)
