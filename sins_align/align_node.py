@@ -63,6 +63,13 @@ class StartupError(RuntimeError):
     """The node cannot start (bad parameters); the reason was logged already."""
 
 
+def refuse_start(node, reason: str):
+    """Log the one-line reason, drop the node and raise StartupError (main() exits 1)."""
+    node.get_logger().fatal(f"cannot start: {reason}")
+    node.destroy_node()
+    raise StartupError(reason)
+
+
 def build_arg_parser(prog: str, description: str, epilog: str) -> argparse.ArgumentParser:
     """An argparse parser that only documents (``--help``); ROS arguments pass through."""
     return argparse.ArgumentParser(
@@ -133,9 +140,7 @@ def _make_node_class():
                 except ValueError as e:
                     reason = str(e)
             if reason is not None:
-                self.get_logger().fatal(f"cannot start: {reason}")
-                self.destroy_node()
-                raise StartupError(reason)
+                refuse_start(self, reason)
             self._pending = None
             self.add_on_set_parameters_callback(self._on_set_parameters)
             self.add_post_set_parameters_callback(self._after_set_parameters)

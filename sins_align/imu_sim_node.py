@@ -102,7 +102,7 @@ def _make_node_class():
     from rclpy.task import Future
     from sensor_msgs.msg import Imu
 
-    from .align_node import StartupError
+    from .align_node import refuse_start
     from .sim import ImuSimulator
     from .specs import grade_specs
 
@@ -137,9 +137,7 @@ def _make_node_class():
                 except ValueError as e:
                     reason = str(e)
             if reason is not None:
-                self.get_logger().fatal(f"cannot start: {reason}")
-                self.destroy_node()
-                raise StartupError(reason)
+                refuse_start(self, reason)
             self.p = values
             self.sim = sim
             self.done = Future()
