@@ -56,7 +56,11 @@ FAST_MAX_BLOCK = 8192
 
 #: gain schedules of the constant model, shared between filter instances (see _cov_block)
 _SCHEDULE_CACHE: dict = {}
-_SCHEDULE_CACHE_MAX = 20000
+_SCHEDULE_CACHE_MAX = 100000        # cached steps (a 10 min bag needs about 1200)
+_SCHEDULE_SIZE = 0
+#: samples x runs pre-integrated at once by the fast path (bounds its temporaries)
+_PIECE_SAMPLE_RUNS = 1 << 18
+_THIRDS = np.full(3, 1.0 / 3.0)     # NIS per degree of freedom
 
 STATES = ("waiting", "aligning", "aligned", "disturbed", "fault")
 
@@ -204,6 +208,7 @@ class AlignmentFilter:
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
         self._K, self._W = earth_poly(self.w_ie)
         self._K2 = self._K @ self._K
+        self._Mstack = np.vstack([np.eye(3), self._K.T, self._K2.T])
         self._cache: dict = {}
         self.on_update = None          # fast path: called with the sample index after updates
         self._rerun = False
@@ -243,6 +248,7 @@ class AlignmentFilter:
         self.nis_mean = np.zeros(self.n)
         self.updates = 0
         self.last_reinflate = np.zeros(self.n)
+        self._node = None              # position in the gain-schedule cache (None: unknown)
 
     def total_covariance(self) -> np.ndarray:
         """Noise covariance plus the bias-induced part ``S Sigma_b S^T``, (1|N, 6, 6)."""
@@ -336,7 +342,6 @@ class AlignmentFilter:
         """
         period = self._period()
         T = len(w)
-        uniform = np.ndim(dt) == 0
         lengths = []
         left, k = period - self.t_acc, 0
         while k < T:
@@ -344,34 +349,53 @@ class AlignmentFilter:
             lengths.append(m)
             k += m
             left = period
-        lengths = np.array(lengths)
+        # pieces of about _PIECE_SAMPLE_RUNS sample-runs keep the pre-integrated sums small
+        per = max(1, _PIECE_SAMPLE_RUNS // self.n)
+        starts = np.concatenate([[0], np.cumsum(lengths)])
+        a = 0
+        while a < len(lengths):
+            b = int(np.searchsorted(starts, starts[a] + per, side="right")) - 1
+            b = min(len(lengths), max(b, a + 1))
+            i0, i1 = int(starts[a]), int(starts[b])
+            self._advance_segments(_part(dt, i0, i1), w[i0:i1], f[i0:i1],
+                                   np.array(lengths[a:b]), track_B,
+                                   None if offset is None else offset + i0)
+            a = b
+
+    def _advance_segments(self, dt, w, f, lengths, track_B: bool, offset: int | None):
+        """Samples cut into update intervals (``lengths``): pre-integration of all of them,
+        then the intervals one by one (mechanization in closed form, update when due)."""
+        period = self._period()
+        uniform = np.ndim(dt) == 0
         dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
-        KT, K2T = self._K.T, self._K2.T
+        # rows k of A[i] (N, 3, 3) are the sums A0, Aa, Ab: C0 A_k = (A[i] C0^T)[:, k], and
+        # the velocity increment sum_k M_k C0 A_k is one (N, 9) @ (9, 3) product
+        A = A.transpose(0, 2, 1, 3)
+        V = V.transpose(0, 2, 1, 3) if V is not None else None
+        Mk = self._Mstack
         H = measurement_matrix("constant")
         ends = np.cumsum(lengths).tolist()
+        n = self.n
         for i, m in enumerate(lengths.tolist()):
             Ti = m * dt if uniform else float(segT[i])
             dti = dt if uniform else float(dt[ends[i] - 1])
             C0, v0 = self.C, self.v
             C0T = C0.mT
-            a = (A[i][:, :, None, :] @ C0T)[:, :, 0]
-            self.v = v0 + a[0] + a[1] @ KT + a[2] @ K2T + self.g_n * Ti
+            self.v = v0 + ((A[i] @ C0T).reshape(n, 9) @ Mk + self.g_n * Ti)
             E = self._earth_rot(m, dt) if uniform else so3_exp(-self.w_ie * Ti)
-            self.C = E @ C0 @ dcm_end[i]
+            self.C = E @ (C0 @ dcm_end[i])
             if track_B:
                 self._B = self._B @ dcm_end[i]
             self.t_int += Ti
             if self.fine:
-                b = (V[i][:, :, None, :] @ C0T)[:, :, 0]
-                self.v_sum = self.v_sum + v0 * Ti + b[0] + b[1] @ KT + b[2] @ K2T \
-                    + self.g_n * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i]))
+                self.v_sum = self.v_sum + v0 * Ti + (
+                    (V[i] @ C0T).reshape(n, 9) @ Mk
+                    + self.g_n * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i])))
             self.t_acc += Ti
             jumps = (lambda: self._disc_m(m, dt)) if uniform else (
                 lambda: self._disc_var(_part(dt, ends[i] - m, ends[i])))
             if self.t_acc < period - 0.5 * dti:     # partial interval: no update yet
-                Phi, Qd, Gm = jumps()
-                self.P = Phi @ self.P @ Phi.T + Qd
-                self.S = Phi @ self.S + Gm
+                self._cov_block(m, dt, None, 0.0, jumps)
                 continue
             if self.fine:
                 Ha = self._cache.get(("Ha", self.t_acc))
@@ -381,7 +405,7 @@ class AlignmentFilter:
                         self._cache[("Ha", self.t_acc)] = Ha
                 Kg, Sinv = self._cov_block(m, dt, Ha, 1.0, jumps)
                 self._apply(self.v_sum / self.t_acc, Kg, Sinv)
-                self.v_sum = np.zeros((self.n, 3))
+                self.v_sum = np.zeros((n, 3))
             else:
                 Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc, jumps)
                 self._apply(self.v, Kg, Sinv)
@@ -404,31 +428,48 @@ class AlignmentFilter:
         return Phi, Qd, Gm
 
     def _cov_block(self, m: int, dt, H, scale: float, jumps=None):
-        """Propagate P and S over m samples and do the covariance part of an update.
+        """Propagate P and S over m samples and, unless H is None, do the covariance part
+        of an update (returns its gain and inverse innovation covariance).
 
         With one covariance shared by all runs (the constant model: it does not depend on
-        the data) the result only depends on the inputs of this function, so it is kept in
-        a bounded module-level cache: a second run of the same configuration (the next
-        bag, the next Monte Carlo batch) reuses the whole gain schedule.
+        the data) the result only depends on the covariance at the start of the pass and
+        on the steps since, so the schedule is kept as a chain in a bounded module-level
+        cache: a second run of the same configuration (the next bag, the next Monte Carlo
+        batch) reuses the whole gain schedule, and a step costs one dictionary look-up.
         """
-        shared = (self.P.shape[0] == 1 and self.S.shape[0] == 1 and self.R.shape[0] == 1
-                  and np.ndim(dt) == 0)
-        if shared:
-            key = (self._cfg_key, self.P.tobytes(), self.S.tobytes(), self.R.tobytes(),
-                   H.tobytes(), m, dt, scale)
-            hit = _SCHEDULE_CACHE.get(key)
+        node = self._node
+        if node is None and np.ndim(dt) == 0:
+            node = self._schedule_root()
+        if node is not None and np.ndim(dt) == 0:
+            key = (m, dt, scale, None if H is None else H.tobytes())
+            hit = node.get(key)
             if hit is not None:
-                self.P, self.S, K, Sinv = hit
+                self.P, self.S, K, Sinv, self._node = hit
                 return K, Sinv
+        else:
+            node = None
         Phi, Qd, Gm = jumps() if jumps is not None else self._disc_m(m, dt)
         self.P = Phi @ self.P @ Phi.T + Qd
         self.S = Phi @ self.S + Gm
-        K, Sinv = self._gain(H, scale)
-        if shared:
-            if len(_SCHEDULE_CACHE) >= _SCHEDULE_CACHE_MAX:
+        K = Sinv = None
+        if H is not None:
+            K, Sinv = self._gain(H, scale)
+        if node is not None:
+            global _SCHEDULE_SIZE
+            _SCHEDULE_SIZE += 1
+            if _SCHEDULE_SIZE > _SCHEDULE_CACHE_MAX:
                 _SCHEDULE_CACHE.clear()
-            _SCHEDULE_CACHE[key] = (self.P, self.S, K, Sinv)
+                _SCHEDULE_SIZE = 0
+            self._node = {}
+            node[key] = (self.P, self.S, K, Sinv, self._node)
         return K, Sinv
+
+    def _schedule_root(self):
+        """The cache chain of the current pass (None when the covariance is per run)."""
+        if self.P.shape[0] != 1 or self.S.shape[0] != 1 or self.R.shape[0] != 1:
+            return None
+        key = (self._cfg_key, self.P.tobytes(), self.S.tobytes(), self.R.tobytes())
+        return _SCHEDULE_CACHE.setdefault(key, {})
 
     def _earth_rot(self, m: int, dt: float):
         key = ("Em", m, dt)
@@ -479,6 +520,7 @@ class AlignmentFilter:
     def _propagate(self, F, dt):
         Phi, Qd = self._disc(F, dt)
         self.P = Phi @ self.P @ np.swapaxes(Phi, -1, -2) + Qd
+        self._node = None
         self.S = Phi @ self.S + self.Gamma * dt
 
     def _advance(self, dt, w, f, gap):
@@ -518,15 +560,21 @@ class AlignmentFilter:
         """Covariance part of an update: gain K and the inverse innovation covariance
         (with the bias part) for the NIS. Updates P and S."""
         R = self.R * scale
-        Ptot = self.total_covariance()
-        self.P, K = joseph_update(self.P, H, R)
-        self.S = self.S - K @ (H @ self.S)
-        return K, inv3(H @ Ptot @ H.mT + R)
+        HS = H @ self.S
+        self.P, K, Sn = joseph_update(self.P, H, R)
+        self._node = None
+        self.S = self.S - K @ HS
+        # innovation covariance with the bias part: H (P + S Sb S^T) H^T + R
+        return K, inv3(Sn + (HS * self._bias_var) @ HS.mT)
 
     def _apply(self, z, K, Sinv):
         """State part of an update: feedback of K z, NIS bookkeeping, re-inflation."""
-        x = (K @ z[..., None])[..., 0]
-        r = nis(z, Sinv) / 3.0
+        if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
+            x = z @ K[0].T
+            r = ((z @ Sinv[0]) * z) @ _THIRDS
+        else:
+            x = (K @ z[..., None])[..., 0]
+            r = nis(z, Sinv) / 3.0
         self.C, self.v = apply_correction(self.config.model, self.C, self.v, x)
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
@@ -549,6 +597,7 @@ class AlignmentFilter:
         P[mask] = self.P0[0]
         S[mask] = 0.0
         self.P, self.S = P, S
+        self._node = None
         self.nis_mean = np.where(mask, 0.0, self.nis_mean)
         self.last_reinflate = np.where(mask, self.t_int, self.last_reinflate)
         self.reinflations += mask
@@ -613,7 +662,7 @@ class AlignmentFilter:
         for i in range(int(horizon / T)):
             P = Phi @ P @ Phi.T + Qd
             S = Phi @ S + Gd
-            P, K = joseph_update(P, H, self.R)
+            P, K, _ = joseph_update(P, H, self.R)
             S = S - K @ (H @ S)
             if i % 25 == 24:                      # stop once the attitude std has settled
                 d = np.diagonal(self._with_bias(P, S), axis1=1, axis2=2)[:, :3]

@@ -68,12 +68,25 @@ def joseph_update(P: np.ndarray, H: np.ndarray, R: np.ndarray):
     -------
     P : ndarray (..., n, n) — posterior covariance (symmetrised).
     K : ndarray (..., n, m) — gain; the error-state estimate is ``K @ innovation``.
+    S : ndarray (..., m, m) — innovation covariance ``H P H^T + R``.
     """
     PHt = P @ H.mT
-    K = PHt @ inv3(H @ PHt + R) if H.shape[-2] == 3 else PHt @ np.linalg.inv(H @ PHt + R)
-    IKH = np.eye(P.shape[-1]) - K @ H
+    S = H @ PHt + R
+    K = PHt @ inv3(S) if H.shape[-2] == 3 else PHt @ np.linalg.inv(S)
+    IKH = _eye(P.shape[-1]) - K @ H
     P = IKH @ P @ IKH.mT + K @ R @ K.mT
-    return 0.5 * (P + P.mT), K
+    return 0.5 * (P + P.mT), K, S
+
+
+_EYES: dict = {}
+
+
+def _eye(n: int) -> np.ndarray:
+    e = _EYES.get(n)
+    if e is None:
+        e = _EYES[n] = np.eye(n)
+        e.flags.writeable = False
+    return e
 
 
 def nis(nu: np.ndarray, S_inv: np.ndarray) -> np.ndarray:

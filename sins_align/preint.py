@@ -15,6 +15,8 @@ Hillis-Steele scan over all intervals at once; everything is numpy over whole ar
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .rotation import dcm_from_quat
@@ -31,26 +33,105 @@ def _qmul(a, b):
 
 
 def _qexp(rv):
-    """Quaternion components of exp(rotvec), rotvec (..., 3); exact (series below 1e-4 rad)."""
-    x, y, z = rv[..., 0], rv[..., 1], rv[..., 2]
-    th2 = x * x + y * y + z * z
-    th = np.sqrt(th2)
-    small = th < 1e-4
-    ths = np.where(small, 1.0, th)
-    k = np.where(small, 0.5 - th2 / 48.0, np.sin(0.5 * ths) / ths)
-    return (k * x, k * y, k * z, np.cos(0.5 * th))
+    """Quaternion components of exp(rotvec), rotvec (..., 3); exact at every angle."""
+    return _qexp_c(rv[..., 0].copy(), rv[..., 1].copy(), rv[..., 2].copy())
+
+
+def _qexp_c(ax, ay, az):
+    """Quaternion components of exp(a) from component arrays, overwriting ax, ay, az.
+
+    When every angle is below 1e-2 rad (IMU increments always are) the coefficients are
+    Taylor polynomials whose first omitted term is below 1e-20: exact to double precision,
+    with no sqrt / sin / cos. Otherwise the closed forms (series below 1e-4 rad).
+    """
+    th2 = ax * ax
+    th2 += ay * ay
+    th2 += az * az
+    if th2.size == 0 or float(th2.max()) < 1e-4:
+        # sin(t/2)/t = 1/2 - t^2/48 + t^4/3840 - t^6/645120, cos(t/2) = 1 - t^2/8 + ...
+        k = th2 * (-1.0 / 645120.0)
+        k += 1.0 / 3840.0
+        k *= th2
+        k -= 1.0 / 48.0
+        k *= th2
+        k += 0.5
+        c = th2 * (-1.0 / 46080.0)
+        c += 1.0 / 384.0
+        c *= th2
+        c -= 1.0 / 8.0
+        c *= th2
+        c += 1.0
+    else:
+        th = np.sqrt(th2)
+        small = th < 1e-4
+        ths = np.where(small, 1.0, th)
+        k = np.where(small, 0.5 - th2 / 48.0, np.sin(0.5 * ths) / ths)
+        c = np.cos(0.5 * th)
+    ax *= k
+    ay *= k
+    az *= k
+    return (ax, ay, az, c)
 
 
 def _qrot(q, v):
     """Rotate vectors v (..., 3) by quaternion components q: returns (..., 3)."""
+    out = np.moveaxis(np.array(v, dtype=float), -1, 0)
+    _qrot_c(q, out)
+    return np.moveaxis(out, 0, -1)
+
+
+def _qrot_c(q, v):
+    """Rotate component vectors ``v = (vx, vy, vz)`` by quaternion components, in place."""
     qx, qy, qz, qw = q
-    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
-    tx = 2.0 * (qy * vz - qz * vy)
-    ty = 2.0 * (qz * vx - qx * vz)
-    tz = 2.0 * (qx * vy - qy * vx)
-    return np.stack([vx + qw * tx + (qy * tz - qz * ty),
-                     vy + qw * ty + (qz * tx - qx * tz),
-                     vz + qw * tz + (qx * ty - qy * tx)], axis=-1)
+    vx, vy, vz = v
+    tx = qy * vz
+    tx -= qz * vy
+    tx *= 2.0
+    ty = qz * vx
+    ty -= qx * vz
+    ty *= 2.0
+    tz = qx * vy
+    tz -= qy * vx
+    tz *= 2.0
+    for o, t, a, b, pa, pb in ((vx, tx, qy, qz, tz, ty), (vy, ty, qz, qx, tx, tz),
+                               (vz, tz, qx, qy, ty, tx)):
+        o += qw * t
+        o += a * pa
+        o -= b * pb
+
+
+def _scan(q):
+    """Inclusive prefix products along axis 1 of quaternion components (S, L, ...), in
+    place: one position after the other (each step vectorised over the other axes), or,
+    when the steps are too small to pay numpy's per-call cost, a Hillis-Steele scan
+    (log2 L steps over whole arrays)."""
+    x = q[0]
+    L, width = x.shape[1], x.size // max(x.shape[1], 1)
+    if L > 2 and L * (1000 + width) > 1.5 * math.log2(L) * (1000 + L * width):
+        d = 1
+        while d < L:
+            prod = _qmul(tuple(c[:, :-d] for c in q), tuple(c[:, d:] for c in q))
+            for c, p in zip(q, prod):
+                c[:, d:] = p
+            d *= 2
+        return
+    x, y, z, w = q
+    o = [np.empty_like(x[:, 0]) for _ in range(5)]
+    tmp = o.pop()
+    mul = np.multiply
+    for j in range(1, x.shape[1]):
+        ax, ay, az, aw = x[:, j - 1], y[:, j - 1], z[:, j - 1], w[:, j - 1]
+        bx, by, bz, bw = x[:, j], y[:, j], z[:, j], w[:, j]
+        ox, oy, oz, ow = o
+        mul(aw, bx, out=ox); mul(ax, bw, out=tmp); ox += tmp            # noqa: E702
+        mul(ay, bz, out=tmp); ox += tmp; mul(az, by, out=tmp); ox -= tmp  # noqa: E702
+        mul(aw, by, out=oy); mul(ax, bz, out=tmp); oy -= tmp            # noqa: E702
+        mul(ay, bw, out=tmp); oy += tmp; mul(az, bx, out=tmp); oy += tmp  # noqa: E702
+        mul(aw, bz, out=oz); mul(ax, by, out=tmp); oz += tmp            # noqa: E702
+        mul(ay, bx, out=tmp); oz -= tmp; mul(az, bw, out=tmp); oz += tmp  # noqa: E702
+        mul(aw, bw, out=ow); mul(ax, bx, out=tmp); ow -= tmp            # noqa: E702
+        mul(ay, by, out=tmp); ow -= tmp; mul(az, bz, out=tmp); ow -= tmp  # noqa: E702
+        bx[...], by[...], bz[...], bw[...] = ox, oy, oz, ow
 
 
 def prefix_rotations(dt, w: np.ndarray) -> tuple:
@@ -62,14 +143,70 @@ def prefix_rotations(dt, w: np.ndarray) -> tuple:
     w : ndarray (S, L, ..., 3) rad/s — padded with zeros past each interval's end.
     """
     q = _qexp(w * np.asarray(dt)[..., None])
-    L = w.shape[1]
-    d = 1
-    while d < L:
-        prod = _qmul(tuple(c[:, :-d] for c in q), tuple(c[:, d:] for c in q))
-        for c, p in zip(q, prod):
-            c[:, d:] = p
-        d *= 2
+    _scan(q)
     return q
+
+
+#: Elements per component array in one piece of :func:`preintegrate` (fits the L2 cache).
+_PIECE = 1 << 15
+
+
+def _weights(dt, s, seg_t, mean_weights: bool, w_ie_mag: float) -> list:
+    """The interval weights of the velocity sums: 1, sin(W s), 1 - cos(W s), and the same
+    times the time from each sample to the end of the interval (mean velocity)."""
+    ws = [np.ones_like(s), np.sin(w_ie_mag * s), 1.0 - np.cos(w_ie_mag * s)]
+    if mean_weights:
+        c = seg_t - s + dt
+        ws += [c, ws[1] * c, ws[2] * c]
+    return ws
+
+
+def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: bool):
+    """Sums of S = len(w) / m intervals of m samples each, uniform dt; pieces of about
+    _PIECE elements, component-major, so every temporary stays in cache."""
+    T, N = w.shape[0], w.shape[1]
+    S = T // m
+    s = dt * np.arange(1, m + 1)
+    wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag))        # (k, m)
+    A = np.empty((S, len(wts), N, 3))
+    qend = np.empty((S, N, 4))
+    per = max(1, _PIECE // (m * N))
+    for a in range(0, S, per):
+        b = min(S, a + per)
+        rot = np.multiply(w[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2), dt)
+        u = np.multiply(f[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2), dt)
+        q = _qexp_c(rot[0], rot[1], rot[2])
+        _scan(q)
+        _qrot_c(q, u)
+        A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 0, 3, 1)
+        for i, c in enumerate(q):
+            qend[a:b, :, i] = c[:, -1]
+    return qend, A, float(s[-1]), float((s * dt).sum())
+
+
+def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
+    """Sums of intervals of any lengths and per-sample dt (jittered stamps): the
+    intervals padded to the longest with zero rates and forces."""
+    S, L = len(lengths), int(lengths.max())
+    T, N = w.shape[0], w.shape[1]
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    pos = np.arange(L)
+    valid = pos[None, :] < lengths[:, None]
+    idx = np.where(valid, starts[:, None] + pos[None, :], T)       # T = padding row
+    dtp = np.concatenate([np.broadcast_to(np.asarray(dt, dtype=float), (T,)), [0.0]])[idx]
+    dtp = dtp * valid
+    rot = np.moveaxis(np.concatenate([w, np.zeros((1, N, 3))])[idx], -1, 0) * dtp[:, :, None]
+    u = np.moveaxis(np.concatenate([f, np.zeros((1, N, 3))])[idx], -1, 0) * dtp[:, :, None]
+    q = _qexp_c(rot[0], rot[1], rot[2])
+    _scan(q)
+    _qrot_c(q, u)
+    s = np.cumsum(dtp, axis=1)                        # time since the interval's start
+    seg_t = s[:, -1]
+    ws = _weights(dtp, s, seg_t[:, None], mean_weights, w_ie_mag)
+    A = np.einsum("ksl,jsln->sknj", np.array(ws) * valid, u)
+    last = (np.arange(S), lengths - 1)
+    qend = np.stack([c[last] for c in q], axis=-1)
+    return qend, A, seg_t, (s * dtp).sum(axis=1)
 
 
 def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
@@ -94,32 +231,22 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     seg_t : ndarray (S,) — duration of each interval, s.
     s_dt : ndarray (S,) — sum over the interval of (time since its start) x dt, s^2.
     """
-    S, L = len(lengths), int(lengths.max())
-    T, N = w.shape[0], w.shape[1]
-    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    pos = np.arange(L)
-    idx = starts[:, None] + pos[None, :]
-    valid = pos[None, :] < lengths[:, None]
-    idx = np.where(valid, idx, T)                     # T = padding row
-    wp = np.concatenate([w, np.zeros((1, N, 3))])[idx]       # (S, L, N, 3)
-    fp = np.concatenate([f, np.zeros((1, N, 3))])[idx]
+    lengths = np.asarray(lengths)
     if np.ndim(dt) == 0:
-        dtp = np.where(valid, float(dt), 0.0)
+        # uniform dt: consecutive intervals of equal length are reshaped, not copied
+        cut = np.flatnonzero(np.diff(lengths)) + 1
+        parts, k = [], 0
+        for grp in np.split(lengths, cut):
+            n = len(grp) * int(grp[0])
+            qe, A, Ti, sd = _equal_intervals(float(dt), w[k:k + n], f[k:k + n], int(grp[0]),
+                                             w_ie_mag, mean_weights)
+            parts.append((qe, A, np.full(len(grp), Ti), np.full(len(grp), sd)))
+            k += n
+        qend, A, seg_t, s_dt = (np.concatenate(p) for p in zip(*parts))
     else:
-        dtp = np.concatenate([np.asarray(dt, dtype=float), [0.0]])[idx] * valid
-    q = prefix_rotations(dtp[:, :, None], wp)
-    u = _qrot(q, fp) * dtp[:, :, None, None]          # (S, L, N, 3)
-    s = np.cumsum(dtp, axis=1)                        # time since the interval's start
-    ws = np.stack([np.ones_like(s), np.sin(w_ie_mag * s), 1.0 - np.cos(w_ie_mag * s)])
-    A = np.einsum("ksl,slnj->sknj", ws, u)
-    seg_t = s[:, -1]
-    V = None
-    if mean_weights:
-        c = (seg_t[:, None] - s + dtp) * valid        # time from each sample to the end
-        V = np.einsum("ksl,sl,slnj->sknj", ws, c, u)
-    last = (np.arange(S), lengths - 1)
-    dcm_end = dcm_from_quat(np.stack([comp[last] for comp in q], axis=-1))
-    return dcm_end, A, V, seg_t, (s * dtp).sum(axis=1)
+        qend, A, seg_t, s_dt = _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights)
+    V = A[:, 3:] if mean_weights else None
+    return dcm_from_quat(qend), A[:, :3], V, seg_t, s_dt
 
 
 def total_rotation(dt, w: np.ndarray) -> np.ndarray:

@@ -40,15 +40,26 @@ def so3_exp(rotvec: np.ndarray) -> np.ndarray:
     rv = np.asarray(rotvec, dtype=float)
     if rv.size == 3:
         return _so3_exp_one(rv)
-    th2 = np.sum(rv * rv, axis=-1)
-    th = np.sqrt(th2)
-    small = th < 1e-4
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - np.cos(ths)) / (ths * ths))
-    K = skew(rv)
-    eye = np.broadcast_to(np.eye(3), K.shape)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    x, y, z = rv[..., 0], rv[..., 1], rv[..., 2]
+    th2 = x * x + y * y + z * z
+    if th2.size and float(th2.max()) < 1e-8:       # all below 1e-4 rad: series only
+        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    else:
+        th = np.sqrt(th2)
+        small = th < 1e-4
+        ths = np.where(small, 1.0, th)
+        a = np.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, np.sin(ths) / ths)
+        b = np.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0,
+                     (1.0 - np.cos(ths)) / (ths * ths))
+    # I + a K + b K^2 with K^2 = v v^T - |v|^2 I, written out entry by entry
+    bx, by, bz = b * x, b * y, b * z
+    ax, ay, az = a * x, a * y, a * z
+    bxy, bxz, byz = bx * y, bx * z, by * z
+    return np.stack([1.0 - b * (y * y + z * z), bxy - az, bxz + ay,
+                     bxy + az, 1.0 - b * (x * x + z * z), byz - ax,
+                     bxz - ay, byz + ax, 1.0 - b * (x * x + y * y)],
+                    axis=-1).reshape(rv.shape[:-1] + (3, 3))
 
 
 def _so3_exp_one(rv: np.ndarray) -> np.ndarray:
@@ -144,19 +155,20 @@ def _quat_from_dcm_one(C: np.ndarray) -> np.ndarray:
 def dcm_from_quat(q: np.ndarray) -> np.ndarray:
     """DCM of a quaternion [x, y, z, w] (normalised first)."""
     q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    out = np.empty(q.shape[:-1] + (3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - z * w)
-    out[..., 0, 2] = 2 * (x * z + y * w)
-    out[..., 1, 0] = 2 * (x * y + z * w)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - x * w)
-    out[..., 2, 0] = 2 * (x * z - y * w)
-    out[..., 2, 1] = 2 * (y * z + x * w)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
+    return dcm_from_quat_components(q[..., 0], q[..., 1], q[..., 2], q[..., 3])
+
+
+def dcm_from_quat_components(x, y, z, w) -> np.ndarray:
+    """DCM of quaternions given as component arrays (normalised first): (...) -> (..., 3, 3)."""
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    xs, ys, zs = x * s, y * s, z * s
+    wx, wy, wz = w * xs, w * ys, w * zs
+    xx, xy, xz = x * xs, x * ys, x * zs
+    yy, yz, zz = y * ys, y * zs, z * zs
+    return np.stack([1.0 - (yy + zz), xy - wz, xz + wy,
+                     xy + wz, 1.0 - (xx + zz), yz - wx,
+                     xz - wy, yz + wx, 1.0 - (xx + yy)],
+                    axis=-1).reshape(np.shape(x) + (3, 3))
 
 
 def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
