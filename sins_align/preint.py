@@ -111,6 +111,13 @@ def _scan(q, v=None):
     Hillis-Steele scan (log2 L steps over whole arrays)."""
     x = q[0]
     L, width = x.shape[1], x.size // max(x.shape[1], 1)
+    if L >= 16 and width < 1000 and all(c.flags.c_contiguous for c in q):
+        m2 = min(range(2, L), key=lambda d: (L % d != 0, abs(d * d - L)))
+        if L % m2 == 0:
+            _two_level_scan(q, m2)
+            if v is not None:
+                _qrot_c(q, v)
+            return
     if L > 2 and L * (1000 + width) > 1.5 * math.log2(L) * (1000 + L * width):
         d = 1
         while d < L:
@@ -142,6 +149,21 @@ def _scan(q, v=None):
             bx[...], by[...], bz[...], bw[...] = ox, oy, oz, ow
         if v is not None:
             _qrot_c((bx, by, bz, bw), tuple(c[:, j] for c in v), buf)
+
+
+def _two_level_scan(q, m2: int):
+    """Prefix products along axis 1 (length L = m1 m2) of contiguous components: scans
+    inside the m1 sub-blocks of m2 (one long step axis of S m1 rows), a scan over the
+    sub-block totals, then each sub-block times the product of the ones before it."""
+    S, L, rest = q[0].shape[0], q[0].shape[1], q[0].shape[2:]
+    m1 = L // m2
+    _scan(tuple(c.reshape((S * m1, m2) + rest) for c in q))
+    blocks = [c.reshape((S, m1, m2) + rest) for c in q]
+    tot = tuple(np.ascontiguousarray(b[:, :, -1]) for b in blocks)
+    _scan(tot)
+    prod = _qmul(tuple(t[:, :-1, None] for t in tot), tuple(b[:, 1:] for b in blocks))
+    for b, p in zip(blocks, prod):
+        b[:, 1:] = p
 
 
 def prefix_rotations(dt, w: np.ndarray) -> tuple:
@@ -186,10 +208,9 @@ def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: boo
     per = max(1, _PIECE * 8 // (np.dtype(dtype).itemsize * N))
     for a in range(0, S, per):
         b = min(S, a + per)
-        rot = np.multiply(w[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2), dt,
-                          dtype=dtype)
-        u = np.multiply(f[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2), dt,
-                        dtype=dtype)
+        rot, u = (np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2),
+                              dt, out=np.empty((3, b - a, m, N), dtype), dtype=dtype)
+                  for x in (w, f))
         q = _qexp_c(rot[0], rot[1], rot[2])
         _scan(q, u)
         A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 0, 3, 1)
@@ -266,14 +287,16 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
 
 def total_rotation(dt, w: np.ndarray) -> np.ndarray:
     """Quaternion [x, y, z, w] of exp(w_1 dt_1) ... exp(w_T dt_T), w (T, 3): a pairwise
-    product tree, about 2T quaternion products instead of the prefix scan's T log T."""
-    q = np.stack(_qexp(w * np.asarray(dt)[..., None]), axis=-1)
-    while len(q) > 1:
-        if len(q) % 2:
-            q = np.concatenate([q, [[0.0, 0.0, 0.0, 1.0]]])
-        a, b = q[0::2], q[1::2]
-        q = np.stack(_qmul(tuple(a.T), tuple(b.T)), axis=-1)
-    return q[0]
+    product tree (T - 1 quaternion products) on component arrays."""
+    q = _qexp(w * np.asarray(dt)[..., None])
+    while len(q[0]) > 1:
+        if len(q[0]) % 2:                     # odd: the last one waits for the next level
+            last = tuple(c[-1:] for c in q)
+            q = _qmul(tuple(c[0:-1:2] for c in q), tuple(c[1::2] for c in q))
+            q = tuple(np.concatenate([c, l]) for c, l in zip(q, last))
+        else:
+            q = _qmul(tuple(c[0::2] for c in q), tuple(c[1::2] for c in q))
+    return np.array([float(c[0]) for c in q])
 
 
 def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndarray,
