@@ -192,15 +192,11 @@ class AlignmentFilter:
     C0 : ndarray (N, 3, 3) — initial C_b^n estimate of each run.
     fast_backtrack : re-run the buffer with the fast path when it is uniformly sampled
         (constant model); False keeps the whole run on the per-sample reference path.
-    block_dtype : precision of the fast path's per-sample arithmetic (float64; float32
-        doubles Monte Carlo throughput, see :func:`sins_align.preint.preintegrate`).
     """
 
-    def __init__(self, config: AlignConfig, C0: np.ndarray, fast_backtrack: bool = True,
-                 block_dtype=np.float64):
+    def __init__(self, config: AlignConfig, C0: np.ndarray, fast_backtrack: bool = True):
         self.config = c = config
         self.fast_backtrack = fast_backtrack
-        self.block_dtype = np.dtype(block_dtype)
         self.lat = c.latitude_deg * DEG
         self.w_ie = earth_rate_enu(self.lat)
         self.g_n = gravity_enu(self.lat, c.height_m)
@@ -373,8 +369,7 @@ class AlignmentFilter:
         then the intervals one by one (mechanization in closed form, update when due)."""
         period = self._period()
         uniform = np.ndim(dt) == 0
-        dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine,
-                                                self.block_dtype)
+        dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
         # rows k of A[i] (N, 3, 3) are the sums A0, Aa, Ab: C0 A_k = (A[i] C0^T)[:, k], and
         # the velocity increment sum_k M_k C0 A_k is one (N, 9) @ (9, 3) product
         A = A.transpose(0, 2, 1, 3)

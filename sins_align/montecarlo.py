@@ -7,8 +7,9 @@ Usage::
         [--accel-bias UG] [--accel-vrw UG/SQRT(HZ)] [--fixed-biases] [--noise-free]
         [--sway none|car|ship] [--sway-amplitude K]
         [--initial-error R P Y | --random-initial] [--true-rpy R P Y | --random-truth]
-        [--model constant|conventional|se3|all] [--one-pass] [--paper]
-        [--seed N] [--every S] [--chunk RUNS] [--json FILE] [--csv FILE] [--plot FILE.png]
+        [--model constant|conventional|se3|all] [--one-pass | --no-backtrack] [--paper]
+        [--seed N] [--every S] [--chunk RUNS] [--json FILE] [--csv FILE]
+        [--plot FILE.png]
 
 Run ``i`` is ``sins_align.sim.simulate(..., seed=seed + i)``; the runs are stacked and fed to
 **one** :class:`~sins_align.estimator.AlignmentFilter` per curve (``C0`` of shape (N, 3, 3)),
@@ -337,14 +338,21 @@ class Curve:
                 "backtrack": c.backtrack, "coarse_update_period_s": c.coarse_update_period}
 
 
-def make_curves(scn: Scenario, model: str, one_pass: bool, paper: bool) -> list[Curve]:
-    """The curves to run: the model(s) with the chosen pipeline; --paper adds the default."""
+def make_curves(scn: Scenario, model: str, one_pass: bool, paper: bool,
+                backtrack: bool = True) -> list[Curve]:
+    """The curves to run: the model(s) with the chosen pipeline; --paper adds the default.
+
+    one_pass: the paper's filter (update at every sample, no backtrack); backtrack=False:
+    the coarse pass alone (update every coarse_update_period, one gain for all runs)."""
     base = AlignConfig(latitude_deg=scn.latitude_deg, height_m=scn.height_m, specs=scn.specs)
     models = MODELS if model == "all" else (model,)
     curves = []
     for m in models:
         if one_pass:
             curves.append(Curve(m, f"{m} (paper one-pass)", base.with_(model=m, **ONE_PASS)))
+        elif not backtrack:
+            curves.append(Curve(m, f"{m} (coarse pass, no backtrack)",
+                                base.with_(model=m, backtrack=False)))
         else:
             curves.append(Curve(m, f"{m} (default pipeline)", base.with_(model=m)))
     if paper:
@@ -678,6 +686,9 @@ def build_parser() -> argparse.ArgumentParser:
     fi.add_argument("--one-pass", action="store_true", default=None,
                     help="the paper's one-pass filter (backtrack=False, coarse_update_period=0)"
                     " instead of the package default pipeline")
+    fi.add_argument("--no-backtrack", action="store_true",
+                    help="the coarse pass alone: updates every 0.1 s, one gain shared by all "
+                    "runs (the fastest configuration)")
     fi.add_argument("--paper", action="store_true",
                     help="the ALGORITHM.md reference scenario: 34 deg N, navigation grade with "
                     "fixed biases, 100 Hz, truth 0 0 0, error 89 89 179, the three models "
@@ -743,7 +754,9 @@ def scenario_from_args(args) -> tuple[Scenario, list[Curve]]:
     model = pick("model")
     one_pass = pick("one_pass")
     try:
-        curves = make_curves(scn, model, one_pass, args.paper)
+        if one_pass and args.no_backtrack:
+            raise CliError("--one-pass and --no-backtrack exclude each other")
+        curves = make_curves(scn, model, one_pass, args.paper, backtrack=not args.no_backtrack)
     except ValueError as e:
         raise CliError(str(e)) from None
     return scn, curves

@@ -194,27 +194,25 @@ def _weights(dt, s, seg_t, mean_weights: bool, w_ie_mag: float) -> list:
     return ws
 
 
-def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: bool,
-                     dtype=np.float64):
-    """Sums of S = len(w) / m intervals of m samples each, uniform dt; pieces of about
-    _PIECE elements, component-major, so every temporary stays in cache. ``dtype`` is the
-    precision of the per-sample arithmetic (the sums are returned in float64)."""
+def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: bool):
+    """Sums of S = len(w) / m intervals of m samples each, uniform dt, in pieces of about
+    _PIECE samples per position, component-major, so every temporary stays in cache."""
     T, N = w.shape[0], w.shape[1]
     S = T // m
     s = dt * np.arange(1, m + 1)
-    wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag), dtype=dtype)  # (k, m)
+    wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag))        # (k, m)
     A = np.empty((S, len(wts), N, 3))
     dcm = np.empty((S, N, 3, 3))
-    per = max(1, _PIECE * 8 // (np.dtype(dtype).itemsize * N))
+    per = max(1, _PIECE // N)
     for a in range(0, S, per):
         b = min(S, a + per)
         rot, u = (np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2),
-                              dt, out=np.empty((3, b - a, m, N), dtype), dtype=dtype)
+                              dt, out=np.empty((3, b - a, m, N)))
                   for x in (w, f))
         q = _qexp_c(rot[0], rot[1], rot[2])
         _scan(q, u)
         A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 0, 3, 1)
-        dcm[a:b] = dcm_from_quat_components(*(c[:, -1].astype(float) for c in q))
+        dcm[a:b] = dcm_from_quat_components(*(c[:, -1] for c in q))
     return dcm, A, float(s[-1]), float((s * dt).sum())
 
 
@@ -242,7 +240,7 @@ def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
 
 
 def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
-                 w_ie_mag: float, mean_weights: bool, dtype=np.float64):
+                 w_ie_mag: float, mean_weights: bool):
     """Attitude-independent sums of each interval.
 
     Parameters
@@ -254,9 +252,6 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     w_ie_mag : float, rad/s — Earth rate magnitude.
     mean_weights : also return the sums weighted by the time left in the interval, for
         the interval's mean velocity.
-    dtype : precision of the per-sample arithmetic with uniform dt (np.float32 halves its
-        cost: the sums of a 0.1 s interval then carry about 1e-7 relative rounding,
-        below 1e-7 m/s and 1e-12 rad); the results are float64.
 
     Returns
     -------
@@ -274,7 +269,7 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
         for grp in np.split(lengths, cut):
             n = len(grp) * int(grp[0])
             dcm, A, Ti, sd = _equal_intervals(float(dt), w[k:k + n], f[k:k + n], int(grp[0]),
-                                             w_ie_mag, mean_weights, dtype)
+                                             w_ie_mag, mean_weights)
             parts.append((dcm, A, np.full(len(grp), Ti), np.full(len(grp), sd)))
             k += n
         dcm, A, seg_t, s_dt = (p[0] if len(parts) == 1 else np.concatenate(p)
