@@ -372,8 +372,6 @@ class AlignmentFilter:
         dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
         # rows k of A[i] (N, 3, 3) are the sums A0, Aa, Ab: C0 A_k = (A[i] C0^T)[:, k], and
         # the velocity increment sum_k M_k C0 A_k is one (N, 9) @ (9, 3) product
-        A = A.transpose(0, 2, 1, 3)
-        V = V.transpose(0, 2, 1, 3) if V is not None else None
         Mk = self._Mstack
         H = measurement_matrix("constant")
         ends = np.cumsum(lengths).tolist()
@@ -582,10 +580,11 @@ class AlignmentFilter:
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
         self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
         c = self.config
-        bad = (self.nis_mean > c.reinflate_nis) & (
-            self.t_int - self.last_reinflate >= c.reinflate_holdoff - 1e-6)
-        if bad.any():
-            self._reinflate(bad)
+        if self.nis_mean.max() > c.reinflate_nis:
+            bad = (self.nis_mean > c.reinflate_nis) & (
+                self.t_int - self.last_reinflate >= c.reinflate_holdoff - 1e-6)
+            if bad.any():
+                self._reinflate(bad)
 
     def _reinflate(self, mask: np.ndarray):
         """Reset the covariance of the runs in ``mask`` to the pass's initial value.

@@ -201,7 +201,7 @@ def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: boo
     S = T // m
     s = dt * np.arange(1, m + 1)
     wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag))        # (k, m)
-    A = np.empty((S, len(wts), N, 3))
+    A = np.empty((S, N, len(wts), 3))
     dcm = np.empty((S, N, 3, 3))
     per = max(1, _PIECE // N)
     for a in range(0, S, per):
@@ -211,7 +211,7 @@ def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: boo
                   for x in (w, f))
         q = _qexp_c(rot[0], rot[1], rot[2])
         _scan(q, u)
-        A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 0, 3, 1)
+        A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 3, 0, 1)
         dcm[a:b] = dcm_from_quat_components(*(c[:, -1] for c in q))
     return dcm, A, float(s[-1]), float((s * dt).sum())
 
@@ -234,7 +234,7 @@ def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
     s = np.cumsum(dtp, axis=1)                        # time since the interval's start
     seg_t = s[:, -1]
     ws = _weights(dtp, s, seg_t[:, None], mean_weights, w_ie_mag)
-    A = np.einsum("ksl,jsln->sknj", np.array(ws) * valid, u)
+    A = np.einsum("ksl,jsln->snkj", np.array(ws) * valid, u)
     last = (np.arange(S), lengths - 1)
     return dcm_from_quat_components(*(c[last] for c in q)), A, seg_t, (s * dtp).sum(axis=1)
 
@@ -256,8 +256,8 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     Returns
     -------
     dcm_end : ndarray (S, N, 3, 3) — Q_m as a DCM (body rotation over the interval).
-    A : ndarray (S, 3, N, 3) — [A0, Aa, Ab] (m/s).
-    V : ndarray (S, 3, N, 3) or None — the mean-velocity sums [V0, Va, Vb] (m).
+    A : ndarray (S, N, 3, 3) — rows A0, Aa, Ab of each run (m/s).
+    V : ndarray (S, N, 3, 3) or None — rows V0, Va, Vb, the mean-velocity sums (m).
     seg_t : ndarray (S,) — duration of each interval, s.
     s_dt : ndarray (S,) — sum over the interval of (time since its start) x dt, s^2.
     """
@@ -276,8 +276,8 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
                                for p in zip(*parts))
     else:
         dcm, A, seg_t, s_dt = _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights)
-    V = A[:, 3:] if mean_weights else None
-    return dcm, A[:, :3], V, seg_t, s_dt
+    V = A[:, :, 3:] if mean_weights else None
+    return dcm, A[:, :, :3], V, seg_t, s_dt
 
 
 def total_rotation(dt, w: np.ndarray) -> np.ndarray:
