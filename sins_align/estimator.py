@@ -480,16 +480,15 @@ class AlignmentFilter:
 
     def _disc_m(self, m: int, dt: float):
         """m-step transition, process noise and bias input of the constant model."""
-        key = ("Dm", m, dt)
-        hit = self._cache.get(key)
-        if hit is None:
+        steps = self._cache.setdefault(("Dm", dt), [])    # steps[k-1]: the k-step triple
+        if len(steps) < m:
             Phi1, Qd1 = self._disc(self._Fconst, dt)
-            Phi, Qd, Gm = np.eye(6), np.zeros((6, 6)), np.zeros((6, 6))
             G1 = self.Gamma * dt
-            for _ in range(m):
+            Phi, Qd, Gm = steps[-1] if steps else (np.eye(6), np.zeros((6, 6)), np.zeros((6, 6)))
+            while len(steps) < m:
                 Phi, Qd, Gm = Phi1 @ Phi, Phi1 @ Qd @ Phi1.T + Qd1, Phi1 @ Gm + G1
-            hit = self._cache[key] = (Phi, Qd, Gm)
-        return hit
+                steps.append((Phi, Qd, Gm))
+        return steps[m - 1]
 
     def _earth_step(self, dt):
         key = ("E", dt)
