@@ -810,10 +810,12 @@ class RunsResult:
 _BLOCK, _BLOCK_SWAY = 2 ** 17, 2 ** 13
 
 
-def _per_run(x, n: int, name: str) -> np.ndarray | None:
-    if x is None:
-        return None
-    a = np.asarray(x, dtype=float)
+def _per_run(x, n: int, name: str) -> np.ndarray:
+    """``x`` as a finite (3,) array (shared by the runs) or (n, 3) array (one row per run)."""
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        a = np.full(0, np.nan)
     if a.shape not in ((3,), (n, 3)) or not np.all(np.isfinite(a)):
         raise ValueError(f"{name} must be 3 finite numbers or ({n}, 3) of them, got {x!r}")
     return a
@@ -863,8 +865,6 @@ def simulate_runs(duration: float, seeds: Sequence[int | None], rate: float = 10
         _check_seed(s)
     n = len(seeds)
     rpy = _per_run(rpy_deg, n, "rpy_deg")
-    if rpy is None:
-        raise ValueError("rpy_deg must be given")
     biases = [None if b is None else np.broadcast_to(_per_run(b, n, name), (n, 3))
               for b, name in ((gyro_bias, "gyro_bias"), (accel_bias, "accel_bias"))]
     truth_at = np.asarray(truth_at, dtype=int).reshape(-1)
