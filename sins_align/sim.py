@@ -45,9 +45,10 @@ Many runs
 ---------
 :func:`simulate_runs` simulates n runs on one time line with the same engine, vectorised
 across runs: run ``i`` is bit for bit ``simulate(..., seed=seeds[i])``. Without sway the truth
-does not depend on time, so the error-free samples are computed once (once per run if the
-attitude is per run) and each run only adds its biases and noise, drawn straight into reused
-buffers; with sway each run's truth is computed for blocks of runs at a time.
+does not depend on time, so the error-free samples are computed for one interval only (shared
+by the runs unless the attitude is per run) and broadcast, and each run only adds its biases
+and noise, drawn straight into a reused buffer; with sway each run's truth is computed, for
+blocks of runs at a time.
 """
 from __future__ import annotations
 
@@ -546,7 +547,7 @@ class _Runs:
     so it is the same run whatever the other runs are. ``C_ref`` (3, 3) is shared by all runs or
     (n, 3, 3) one per run; biases (n, 3) or None = drawn from the run's bias stream.
     Without sway the truth does not depend on time (and not on the run if ``C_ref`` is shared):
-    it is computed once, for one interval, and broadcast.
+    it is computed for one interval only and broadcast.
     """
 
     def __init__(self, seeds: Sequence, rate: float, lat_rad: float, height_m: float,
@@ -833,9 +834,9 @@ def simulate_runs(duration: float, seeds: Sequence[int | None], rate: float = 10
     duration, ..., seed=seeds[i])`` with run ``i``'s attitude and biases (its samples, C0,
     biases, and C_true at ``truth_at``).
 
-    Without sway the error-free samples are computed once (once per run if the attitude is per
-    run) and each run only adds its biases and noise; with sway each run's truth is computed,
-    for blocks of runs at a time.
+    Without sway the error-free samples are computed for one interval only (shared by the runs
+    unless the attitude is per run) and each run only adds its biases and noise; with sway
+    each run's truth is computed, for blocks of runs at a time.
 
     Parameters
     ----------
