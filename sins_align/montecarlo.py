@@ -370,46 +370,39 @@ def _uniform_rotation(rng: np.random.Generator) -> np.ndarray:
 
 
 def simulate_chunk(scn: Scenario, first: int, count: int) -> dict[str, np.ndarray]:
-    """Simulate runs ``first .. first+count-1`` and stack them.
+    """Simulate runs ``first .. first+count-1`` together (:func:`sins_align.sim.simulate_runs`;
+    run ``i`` is ``simulate(..., seed=scn.seed + i)`` bit for bit).
 
     Returns
     -------
     dict with W, F (T, n, 3) rad/s, m/s^2; C_out (K, n, 3, 3) true C_b^n at the output
     times; C_est0 (n, 3, 3) initial estimates; limit (n, 3) rad, limit error of each run.
     """
-    from .sim import simulate
+    from .sim import simulate_runs
 
-    T = scn.samples
-    idx = scn.output_indices()
-    W = np.empty((T, count, 3))
-    F = np.empty((T, count, 3))
-    C_out = np.empty((len(idx), count, 3, 3))
-    C_est0 = np.empty((count, 3, 3))
-    limit = np.empty((count, 3))
+    runs = range(first, first + count)
+    if scn.true_rpy_deg is None:
+        rpy = rpy_from_dcm(np.array([_uniform_rotation(np.random.default_rng([scn.seed, i, 1]))
+                                     for i in runs])) / DEG
+    else:
+        rpy = scn.true_rpy_deg
     sp = scn.specs
     bias = (dict(gyro_bias=np.full(3, sp.gyro_bias), accel_bias=np.full(3, sp.accel_bias))
             if scn.fixed_biases else {})
+    s = simulate_runs(scn.duration, [scn.seed + i for i in runs], scn.rate, scn.latitude_deg,
+                      scn.height_m, rpy_deg=rpy, specs=sp, sway=scn.sway,
+                      sway_amplitude=scn.sway_amplitude, noise=scn.noise,
+                      truth_at=scn.output_indices()[1:] - 1, **bias)
+    if scn.initial_error_deg is None:
+        C_est0 = np.array([_uniform_rotation(np.random.default_rng([scn.seed, i, 2]))
+                           for i in runs])
+    else:
+        C_est0 = s.C0 @ dcm_from_rpy(np.array(scn.initial_error_deg) * DEG).T
     g = gravity(scn.latitude_deg * DEG, scn.height_m)
-    for j in range(count):
-        i = first + j
-        if scn.true_rpy_deg is None:
-            rpy = rpy_from_dcm(_uniform_rotation(np.random.default_rng([scn.seed, i, 1]))) / DEG
-        else:
-            rpy = scn.true_rpy_deg
-        s = simulate(scn.duration, scn.rate, scn.latitude_deg, scn.height_m, rpy_deg=tuple(rpy),
-                     specs=sp, sway=scn.sway, sway_amplitude=scn.sway_amplitude,
-                     seed=scn.seed + i, noise=scn.noise, **bias)
-        W[:, j] = s.gyro
-        F[:, j] = s.accel
-        C_out[0, j] = s.C0
-        C_out[1:, j] = s.C_true[idx[1:] - 1]
-        if scn.initial_error_deg is None:
-            C_est0[j] = _uniform_rotation(np.random.default_rng([scn.seed, i, 2]))
-        else:
-            C_est0[j] = s.C0 @ dcm_from_rpy(np.array(scn.initial_error_deg) * DEG).T
-        limit[j] = limit_error(scn.latitude_deg * DEG, s.C0 @ s.accel_bias,
-                               s.C0 @ s.gyro_bias, g)
-    return dict(W=W, F=F, C_out=C_out, C_est0=C_est0, limit=limit)
+    limit = limit_error(scn.latitude_deg * DEG, (s.C0 @ s.accel_bias[..., None])[..., 0],
+                        (s.C0 @ s.gyro_bias[..., None])[..., 0], g)
+    return dict(W=s.gyro, F=s.accel, C_out=np.concatenate([s.C0[None], s.C_true]),
+                C_est0=C_est0, limit=limit)
 
 
 def chunk_runs(scn: Scenario, curves: Sequence[Curve], budget: int = CHUNK_BYTES) -> int:

@@ -36,9 +36,19 @@ residual carried forward.
 Determinism
 -----------
 Everything random comes from ``np.random.default_rng(seed)`` split into independent child
-streams (sway, biases, gyro noise, accel noise, gyro wander, accel wander). Samples are produced
-in fixed chunks of ``_CHUNK`` samples aligned to sample 0, so :class:`ImuSimulator` streaming
-``next_block`` calls of any sizes give bit-identical samples to :func:`simulate`.
+streams (sway, biases, gyro noise, accel noise, gyro wander, accel wander); a run makes only
+the streams it uses. Samples are produced in fixed chunks of ``_CHUNK`` samples aligned to
+sample 0, so :class:`ImuSimulator` streaming ``next_block`` calls of any sizes give
+bit-identical samples to :func:`simulate`.
+
+Many runs
+---------
+:func:`simulate_runs` simulates n runs on one time line with the same engine, vectorised
+across runs: run ``i`` is bit for bit ``simulate(..., seed=seeds[i])``. Without sway the truth
+does not depend on time, so the error-free samples are computed for one interval only (shared
+by the runs unless the attitude is per run) and broadcast, and each run only adds its biases
+and noise, drawn straight into a reused buffer; with sway each run's truth is computed, for
+blocks of runs at a time.
 """
 from __future__ import annotations
 
@@ -52,7 +62,7 @@ from .rotation import dcm_from_rpy, quat_from_dcm, skew, so3_exp, so3_log
 from .specs import SensorSpecs, grade_specs
 
 __all__ = ["SwayProfile", "SWAY_PRESETS", "sway_profile", "SimResult", "simulate",
-           "ImuSimulator"]
+           "ImuSimulator", "RunsResult", "simulate_runs"]
 
 _DEG = np.pi / 180.0
 #: Samples generated per internal chunk (fixed so that streaming == batch bit for bit).
@@ -280,18 +290,19 @@ def _right_jacobian(theta: np.ndarray) -> np.ndarray:
     return np.eye(3) - a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
-class _SwayModel:
-    """Deterministic realisation of a SwayProfile: angle, rate, displacement, velocity at any s.
+class _Sway:
+    """Deterministic realisations of a SwayProfile for n runs, one sway stream each: angle, rate,
+    displacement and velocity at any s (time since t0, s), vectorised across runs.
 
-    ``s`` is the time since ``t0`` in seconds. Bursts are drawn lazily, in onset order, from the
-    sway stream, so the realisation does not depend on how far ahead it was evaluated.
+    Each run's bursts are drawn lazily, in onset order, from its stream, so a realisation does
+    not depend on how far ahead it was evaluated. Evaluation times only move forward.
     """
 
-    def __init__(self, profile: SwayProfile, rng: np.random.Generator):
+    def __init__(self, profile: SwayProfile, rngs: list[np.random.Generator]):
         self.p = profile
-        self.rng = rng
-        ph = rng.uniform(0.0, 2.0 * np.pi, size=6)
-        self.ang_phase, self.lin_phase = ph[:3], ph[3:]
+        self.rngs = rngs
+        ph = np.array([rng.uniform(0.0, 2.0 * np.pi, size=6) for rng in rngs])
+        self.ang_phase, self.lin_phase = ph[:, :3], ph[:, 3:]
         self.ang_amp = np.array(profile.ang_amp)
         self.ang_w = 2.0 * np.pi * np.array(profile.ang_freq)
         self.lin_amp = np.array(profile.lin_amp)
@@ -299,70 +310,77 @@ class _SwayModel:
         self.lever = np.array(profile.lever_arm)
         self.has_bursts = profile.burst_rate > 0.0 and (
             max(profile.burst_ang_amp) > 0.0 or max(profile.burst_lin_amp) > 0.0)
-        # bursts: rows [onset, sigma, omega_d, a_ang(3), a_lin(3)]
-        self.bursts = np.zeros((0, 9))
+        # bursts of each run: rows [onset, sigma, omega_d, a_ang(3), a_lin(3)]
+        self.bursts = [np.zeros((0, 9)) for _ in rngs]
         if self.has_bursts:
             wn_lo = 2.0 * np.pi * profile.burst_freq[0]
             self.burst_len = _BURST_CUT / (profile.burst_damping * wn_lo)
             # start the Poisson process early so the motion is already stationary at s = 0
-            self._next_onset = -self.burst_len + rng.exponential(1.0 / profile.burst_rate)
+            self._next_onset = [-self.burst_len + rng.exponential(1.0 / profile.burst_rate)
+                                for rng in rngs]
 
-    def _extend_bursts(self, s_max: float) -> None:
-        p = self.p
+    def _extend_bursts(self, j: int, s_max: float) -> None:
+        p, rng = self.p, self.rngs[j]
         rows = []
-        while self._next_onset <= s_max:
-            u = self.rng.random(7)
+        while self._next_onset[j] <= s_max:
+            u = rng.random(7)
             fn = p.burst_freq[0] + (p.burst_freq[1] - p.burst_freq[0]) * u[0]
             wn = 2.0 * np.pi * fn
             sigma = p.burst_damping * wn
             wd = wn * np.sqrt(1.0 - p.burst_damping ** 2)
             a_ang = np.array(p.burst_ang_amp) * (2.0 * u[1:4] - 1.0)
             a_lin = np.array(p.burst_lin_amp) * (2.0 * u[4:7] - 1.0)
-            rows.append(np.concatenate([[self._next_onset, sigma, wd], a_ang, a_lin]))
-            self._next_onset += self.rng.exponential(1.0 / p.burst_rate)
+            rows.append(np.concatenate([[self._next_onset[j], sigma, wd], a_ang, a_lin]))
+            self._next_onset[j] += rng.exponential(1.0 / p.burst_rate)
         if rows:
-            self.bursts = np.vstack([self.bursts] + rows)
+            self.bursts[j] = np.vstack([self.bursts[j]] + rows)
 
-    def evaluate(self, s: np.ndarray):
-        """Sway at times ``s`` (M,) s since t0.
+    def _add_bursts(self, j: int, s: np.ndarray, theta, theta_dot, d, d_dot) -> None:
+        """Add run ``j``'s bursts at times ``s`` to its (M, 3) views theta, theta_dot, d, d_dot."""
+        self._extend_bursts(j, float(s[-1]))
+        tau = self.p.burst_onset
+        for row in self.bursts[j]:
+            onset, sigma, wd = row[0], row[1], row[2]
+            if onset + self.burst_len < s[0] or onset >= s[-1]:
+                continue
+            i0 = np.searchsorted(s, onset, side="right")
+            i1 = np.searchsorted(s, onset + self.burst_len, side="right")
+            u = s[i0:i1] - onset
+            e1 = np.exp(-u / tau)
+            ramp = (1.0 - e1) ** 2
+            ramp_dot = 2.0 * (1.0 - e1) * e1 / tau
+            dec = np.exp(-sigma * u)
+            sn, cs = np.sin(wd * u), np.cos(wd * u)
+            h = ramp * dec * sn
+            h_dot = dec * (ramp_dot * sn + ramp * (wd * cs - sigma * sn))
+            theta[i0:i1] += h[:, None] * row[3:6]
+            theta_dot[i0:i1] += h_dot[:, None] * row[3:6]
+            d[i0:i1] += h[:, None] * row[6:9]
+            d_dot[i0:i1] += h_dot[:, None] * row[6:9]
+        # evaluation times only move forward: forget bursts that have died out
+        b = self.bursts[j]
+        self.bursts[j] = b[b[:, 0] + self.burst_len >= s[0]]
+
+    def evaluate(self, s: np.ndarray, runs: slice):
+        """Sway of the runs ``runs`` at times ``s`` (M,) s since t0.
 
         Returns
         -------
-        theta : (M, 3) rad, body — sway rotation vector.
-        omega : (M, 3) rad/s, body — sway angular rate (``R' = R (omega x)``).
-        d : (M, 3) m, ENU — displacement of the rotation centre.
-        d_dot : (M, 3) m/s, ENU — its velocity.
+        theta : (M, nr, 3) rad, body — sway rotation vector.
+        omega : (M, nr, 3) rad/s, body — sway angular rate (``R' = R (omega x)``).
+        d : (M, nr, 3) m, ENU — displacement of the rotation centre.
+        d_dot : (M, nr, 3) m/s, ENU — its velocity.
         """
-        arg = s[:, None] * self.ang_w + self.ang_phase
+        arg = s[:, None, None] * self.ang_w + self.ang_phase[runs]
         theta = self.ang_amp * np.sin(arg)
         theta_dot = self.ang_amp * self.ang_w * np.cos(arg)
-        arg = s[:, None] * self.lin_w + self.lin_phase
+        arg = s[:, None, None] * self.lin_w + self.lin_phase[runs]
         d = self.lin_amp * np.sin(arg)
         d_dot = self.lin_amp * self.lin_w * np.cos(arg)
         if self.has_bursts and len(s):
-            self._extend_bursts(float(s[-1]))
-            tau = self.p.burst_onset
-            for row in self.bursts:
-                onset, sigma, wd = row[0], row[1], row[2]
-                if onset + self.burst_len < s[0] or onset >= s[-1]:
-                    continue
-                i0 = np.searchsorted(s, onset, side="right")
-                i1 = np.searchsorted(s, onset + self.burst_len, side="right")
-                u = s[i0:i1] - onset
-                e1 = np.exp(-u / tau)
-                ramp = (1.0 - e1) ** 2
-                ramp_dot = 2.0 * (1.0 - e1) * e1 / tau
-                dec = np.exp(-sigma * u)
-                sn, cs = np.sin(wd * u), np.cos(wd * u)
-                h = ramp * dec * sn
-                h_dot = dec * (ramp_dot * sn + ramp * (wd * cs - sigma * sn))
-                theta[i0:i1] += h[:, None] * row[3:6]
-                theta_dot[i0:i1] += h_dot[:, None] * row[3:6]
-                d[i0:i1] += h[:, None] * row[6:9]
-                d_dot[i0:i1] += h_dot[:, None] * row[6:9]
-            # evaluation times only move forward: forget bursts that have died out
-            self.bursts = self.bursts[self.bursts[:, 0] + self.burst_len >= s[0]]
-        omega = np.einsum("mij,mj->mi", _right_jacobian(theta), theta_dot)
+            for c, j in enumerate(range(*runs.indices(len(self.rngs)))):
+                self._add_bursts(j, s, theta[:, c], theta_dot[:, c], d[:, c], d_dot[:, c])
+        omega = np.einsum("...ij,...j->...i", _right_jacobian(theta), theta_dot)
         return theta, omega, d, d_dot
 
 
@@ -370,7 +388,8 @@ class _SwayModel:
 # Error processes
 # ----------------------------------------------------------------------------------------------
 def _ar1_scan(y0: np.ndarray, drive: np.ndarray, a: float) -> np.ndarray:
-    """``y_j = a y_{j-1} + drive_j`` for j = 0..M-1 starting from ``y0`` (3,), vectorised.
+    """``y_j = a y_{j-1} + drive_j`` for j = 0..M-1 along axis 0 of ``drive`` (M, ...), starting
+    from ``y0`` (shape ``drive.shape[1:]``), vectorised.
 
     Uses ``y_j = a^(j+1) (y0 + sum_{i<=j} drive_i a^-(i+1))`` on sub-blocks short enough that
     ``a^-L`` stays far from overflow.
@@ -384,15 +403,16 @@ def _ar1_scan(y0: np.ndarray, drive: np.ndarray, a: float) -> np.ndarray:
     y = y0
     for j0 in range(0, m, L):
         blk = drive[j0:j0 + L]
-        pw = a ** np.arange(1, len(blk) + 1, dtype=float)
-        seg = pw[:, None] * (y + np.cumsum(blk / pw[:, None], axis=0))
+        pw = (a ** np.arange(1, len(blk) + 1, dtype=float)).reshape((-1,) + (1,) * (blk.ndim - 1))
+        seg = pw * (y + np.cumsum(blk / pw, axis=0))
         out[j0:j0 + L] = seg
         y = seg[-1]
     return out
 
 
 def _quantize(inc: np.ndarray, q: float, residual: np.ndarray):
-    """Quantise increments (M, 3) to multiples of ``q``, carrying the residual (3,).
+    """Quantise increments (M, ...) to multiples of ``q`` along axis 0, carrying the residual
+    (shape ``inc.shape[1:]``).
 
     The sum of the outputs equals the sum of the inputs plus the old residual minus the new
     one, so no information is lost over time (|residual| <= q/2).
@@ -403,9 +423,86 @@ def _quantize(inc: np.ndarray, q: float, residual: np.ndarray):
     return out, acc[-1] - q * n[-1]
 
 
+def _normals(rngs: Sequence[np.random.Generator], buf: np.ndarray, m: int, scale: float):
+    """``scale`` x standard normals, run-major (len(rngs), m, 3): each stream fills its own
+    run's (m, 3) block of ``buf`` (flat, reused), drawing exactly what
+    ``standard_normal((m, 3))`` draws."""
+    b = buf[:len(rngs) * m * 3].reshape(len(rngs), m, 3)
+    for bj, g in zip(b, rngs):
+        g.standard_normal(out=bj)
+    np.multiply(b, scale, out=b)
+    return b
+
+
+#: One 3-vector of float64 as a single item.
+_VEC3 = np.dtype((np.void, 24))
+
+
+def _put(out: np.ndarray, b: np.ndarray) -> None:
+    """``out`` (m, nr, 3) = run-major ``b`` (nr, m, 3), moving whole 3-vectors (far faster than
+    a transposed element-wise copy)."""
+    out.view(_VEC3)[..., 0] = b.view(_VEC3)[..., 0].T
+
+
+class _Errors:
+    """Errors of one sensor triad (gyro or accelerometer) of n runs: constant bias, white noise,
+    first-order Gauss-Markov wander, quantisation of the increments with the residual carried.
+
+    Parameters: bias (n, 3); white : noise density; instability, quantum : SensorSpecs figures;
+    seqs : the runs' seed sequences; kind : 'gyro' or 'accel' (names the child streams);
+    noise : False = no white noise and no wander.
+    """
+
+    def __init__(self, bias: np.ndarray, white: float, instability: float, quantum: float,
+                 seqs: list[np.random.SeedSequence], kind: str, noise: bool):
+        self.bias, self.white, self.instability, self.quantum = bias, white, instability, quantum
+        self.noise = [_stream(q, kind + "_noise") for q in seqs] if noise else None
+        wander = noise and instability > 0.0
+        self.wander = [_stream(q, kind + "_wander") for q in seqs] if wander else None
+        self.state = (np.array([g.normal(0.0, instability, 3) for g in self.wander])
+                      if wander else None)
+        self.residual = np.zeros_like(bias)
+
+    def add(self, ideal: np.ndarray, runs: slice, out: np.ndarray, buf: np.ndarray, rate: float,
+            a: float):
+        """``out`` (m, nr, 3) = ``ideal`` + bias + white noise + wander of the runs ``runs``,
+        quantised; advances the wander and the quantisation residual. Returns the wander added
+        (None when off)."""
+        m, dt = len(out), 1.0 / rate
+        base = ideal + self.bias[runs]
+        drift = None
+        if self.noise is None:
+            out[...] = base
+        else:
+            b = _normals(self.noise[runs], buf, m, self.white * np.sqrt(rate))
+            _put(out, np.add(b, base.transpose(1, 0, 2), out=b))
+            if self.wander is not None:
+                c = np.sqrt(1.0 - a ** 2)
+                drive = _normals(self.wander[runs], buf, m, c * self.instability)
+                drift = _ar1_scan(self.state[runs], drive.transpose(1, 0, 2), a)
+                self.state[runs] = drift[-1]
+                out += drift
+        if self.quantum > 0.0:
+            inc, self.residual[runs] = _quantize(out * dt, self.quantum, self.residual[runs])
+            np.divide(inc, dt, out=out)
+        return drift
+
+
 # ----------------------------------------------------------------------------------------------
 # Simulator
 # ----------------------------------------------------------------------------------------------
+#: The child streams of a run's seed, in spawn order.
+_STREAMS = ("sway", "bias", "gyro_noise", "accel_noise", "gyro_wander", "accel_wander")
+
+
+def _stream(seq: np.random.SeedSequence, name: str) -> np.random.Generator:
+    """Child stream ``name`` of ``seq``: the generator ``np.random.default_rng(seed).spawn(6)[i]``,
+    i = ``_STREAMS.index(name)``, made on its own (a run makes only the streams it uses)."""
+    child = np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key + (_STREAMS.index(name),),
+                                   pool_size=seq.pool_size)
+    return np.random.Generator(np.random.PCG64(child))
+
+
 def _finite(x, name: str) -> float:
     try:
         v = float(x)
@@ -414,6 +511,122 @@ def _finite(x, name: str) -> float:
     if not np.isfinite(v):
         raise ValueError(f"{name} must be finite, got {x!r}")
     return v
+
+
+def _check_seed(seed) -> None:
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+        raise ValueError(f"seed must be an int or None, got {seed!r}")
+
+
+def _setup(rate, lat_deg, height_m, t0, specs, sway, sway_amplitude):
+    """Checked common arguments: rate, lat_deg, height_m, t0, SensorSpecs, scaled SwayProfile."""
+    rate = _finite(rate, "rate")
+    if rate <= 0.0:
+        raise ValueError(f"rate must be > 0 Hz, got {rate!r}")
+    lat_deg = _finite(lat_deg, "lat_deg")
+    if abs(lat_deg) > 90.0:
+        raise ValueError(f"lat_deg must be within [-90, 90], got {lat_deg!r}")
+    if isinstance(specs, str):
+        specs = grade_specs(specs)
+    elif not isinstance(specs, SensorSpecs):
+        raise ValueError(f"specs must be a SensorSpecs or a grade name, got {specs!r}")
+    if isinstance(sway, str):
+        sway = sway_profile(sway, sway_amplitude)
+    elif isinstance(sway, SwayProfile):
+        sway = sway.scaled(sway_amplitude)
+    else:
+        raise ValueError(f"sway must be a SwayProfile or a preset name, got {sway!r}")
+    return (rate, lat_deg, _finite(height_m, "height_m"), _finite(t0, "t0"), specs, sway)
+
+
+class _Runs:
+    """The sensor model of n runs on one time line, vectorised across runs: the engine of
+    :class:`ImuSimulator` (one run) and :func:`simulate_runs`.
+
+    Run ``i`` draws everything from the child streams of ``np.random.SeedSequence(seeds[i])``,
+    so it is the same run whatever the other runs are. ``C_ref`` (3, 3) is shared by all runs or
+    (n, 3, 3) one per run; biases (n, 3) or None = drawn from the run's bias stream.
+    Without sway the truth does not depend on time (and not on the run if ``C_ref`` is shared):
+    it is computed for one interval only and broadcast.
+    """
+
+    def __init__(self, seeds: Sequence, rate: float, lat_rad: float, height_m: float,
+                 C_ref: np.ndarray, specs: SensorSpecs, sway: SwayProfile, noise: bool,
+                 gyro_bias: np.ndarray | None, accel_bias: np.ndarray | None,
+                 block: int = _CHUNK):
+        seqs = [np.random.SeedSequence(s) for s in seeds]
+        n = len(seqs)
+        self.rate, self.dt = rate, 1.0 / rate
+        self.C_ref = C_ref
+        self.w_ie_n = earth_rate_enu(lat_rad)
+        self.g_n = gravity_enu(lat_rad, height_m)
+        # inertial rotation of n over one interval, seen in the reference body axes:
+        # C_ref^T exp(w dt) C_ref = exp(C_ref^T w dt), the latter keeps full relative precision
+        E = [so3_exp(C.T @ self.w_ie_n * self.dt) for C in C_ref.reshape(-1, 3, 3)]
+        self._E = E[0] if C_ref.ndim == 2 else np.array(E)
+        self._sway = None if sway.is_static else _Sway(sway, [_stream(q, "sway") for q in seqs])
+
+        sp = specs
+        if gyro_bias is None or accel_bias is None:
+            drawn = np.empty((n, 2, 3))
+            for q, b in zip(seqs, drawn):
+                r = _stream(q, "bias")
+                b[0], b[1] = r.normal(0.0, sp.gyro_bias, 3), r.normal(0.0, sp.accel_bias, 3)
+            gyro_bias = drawn[:, 0] if gyro_bias is None else gyro_bias
+            accel_bias = drawn[:, 1] if accel_bias is None else accel_bias
+        self.gyro = _Errors(np.array(gyro_bias, dtype=float), sp.gyro_arw,
+                            sp.gyro_bias_instability, sp.gyro_quantization, seqs, "gyro", noise)
+        self.accel = _Errors(np.array(accel_bias, dtype=float), sp.accel_vrw,
+                             sp.accel_bias_instability, sp.accel_quantization, seqs, "accel",
+                             noise)
+        self._a = float(np.exp(-self.dt / sp.bias_correlation_time))
+        self._buf = np.empty(3 * max(block, _CHUNK))
+
+        # truth at t0 (evaluated on [0, dt]: the stacked formulas of the chunks, bit for bit)
+        _, C, _, v = self._truth(np.array([0.0, self.dt]), slice(0, n))
+        self.C0 = np.broadcast_to(C[0], (n, 3, 3)).copy()
+        self.v0 = np.broadcast_to(v[0], (n, 3)).copy()
+
+    def _truth(self, s: np.ndarray, runs: slice):
+        """Sway rotation R, C_b^n, displacement d of the rotation centre and IMU velocity v of
+        the runs ``runs`` at times ``s`` since t0: (M, nr, ...) arrays (nr = 1 without sway and
+        with a shared C_ref)."""
+        C_ref = self.C_ref if self.C_ref.ndim == 2 else self.C_ref[runs]
+        if self._sway is None:          # no motion: R = I, no displacement, no velocity
+            nr = len(C_ref) if C_ref.ndim == 3 else 1
+            theta = omega = d = d_dot = np.zeros((len(s), nr, 3))
+            lever = np.zeros(3)
+        else:
+            theta, omega, d, d_dot = self._sway.evaluate(s, runs)
+            lever = self._sway.lever
+        R = so3_exp(theta)
+        C = C_ref @ R
+        v = d_dot + np.einsum("...ij,...j->...i", C, np.cross(omega, lever))
+        return R, C, d, v
+
+    def chunk(self, k0: int, m: int, runs: slice, gyro: np.ndarray, accel: np.ndarray) -> dict:
+        """Samples ``k0 .. k0+m-1`` of the runs ``runs`` into ``gyro``, ``accel`` (m, nr, 3).
+
+        ``k0`` starts an internal chunk (a multiple of ``_CHUNK``) and ``m <= _CHUNK``; a short
+        ``m`` gives exactly the first ``m`` samples of the full chunk, but the error processes
+        then continue from sample ``k0 + m``: only the last chunk may be short. Chunks are
+        generated in time order for each run.
+
+        Returns the times ``s`` (m + 1,) of samples ``k0-1 .. k0+m-1`` since t0, the truth R, C,
+        d, v at those times (one time row without sway), the error-free samples
+        ``gyro_ideal``, ``accel_ideal`` (one row without sway) and the wander ``gyro_drift``,
+        ``accel_drift`` added (None when off).
+        """
+        s = np.arange(k0, k0 + m + 1, dtype=float) / self.rate
+        R, C, d, v = self._truth(s if self._sway else s[:2], runs)
+        E = self._E if self._E.ndim == 2 else self._E[runs]
+        dC = np.swapaxes(R[:-1], -1, -2) @ E @ R[1:]
+        gyro_ideal = so3_log(dC) / self.dt
+        accel_ideal = np.einsum("...ji,...j->...i", C[1:], (v[1:] - v[:-1]) / self.dt - self.g_n)
+        gyro_drift = self.gyro.add(gyro_ideal, runs, gyro, self._buf, self.rate, self._a)
+        accel_drift = self.accel.add(accel_ideal, runs, accel, self._buf, self.rate, self._a)
+        return dict(s=s, R=R, C=C, d=d, v=v, gyro_ideal=gyro_ideal, accel_ideal=accel_ideal,
+                    gyro_drift=gyro_drift, accel_drift=accel_drift)
 
 
 class ImuSimulator:
@@ -442,28 +655,12 @@ class ImuSimulator:
                  sway_amplitude: float = 1.0, seed: int | None = 0, t0: float = 0.0,
                  gyro_bias: Sequence[float] | None = None,
                  accel_bias: Sequence[float] | None = None, noise: bool = True):
-        rate = _finite(rate, "rate")
-        if rate <= 0.0:
-            raise ValueError(f"rate must be > 0 Hz, got {rate!r}")
-        lat_deg = _finite(lat_deg, "lat_deg")
-        if abs(lat_deg) > 90.0:
-            raise ValueError(f"lat_deg must be within [-90, 90], got {lat_deg!r}")
-        self.height_m = _finite(height_m, "height_m")
-        self.t0 = _finite(t0, "t0")
+        rate, lat_deg, self.height_m, self.t0, specs, sway = _setup(
+            rate, lat_deg, height_m, t0, specs, sway, sway_amplitude)
         rpy = np.array(_vec3(rpy_deg, "rpy_deg"))
-        if isinstance(specs, str):
-            specs = grade_specs(specs)
-        elif not isinstance(specs, SensorSpecs):
-            raise ValueError(f"specs must be a SensorSpecs or a grade name, got {specs!r}")
-        if isinstance(sway, str):
-            sway = sway_profile(sway, sway_amplitude)
-        elif isinstance(sway, SwayProfile):
-            sway = sway.scaled(sway_amplitude)
-        else:
-            raise ValueError(f"sway must be a SwayProfile or a preset name, got {sway!r}")
-        if seed is not None and not isinstance(seed, (int, np.integer)):
-            raise ValueError(f"seed must be an int or None, got {seed!r}")
-
+        _check_seed(seed)
+        biases = [None if b is None else np.array([_vec3(b, name)])
+                  for b, name in ((gyro_bias, "gyro_bias"), (accel_bias, "accel_bias"))]
         self.rate = rate
         self.dt = 1.0 / rate
         self.lat_rad = lat_deg * _DEG
@@ -471,100 +668,39 @@ class ImuSimulator:
         self.sway = sway
         self.noise = bool(noise)
         self.seed = seed
-
-        rng = np.random.default_rng(seed)
-        (r_sway, r_bias, self._rng_gn, self._rng_an,
-         r_gw, r_aw) = rng.spawn(6)
-        self._rng_gw, self._rng_aw = r_gw, r_aw
-
-        gb = r_bias.normal(0.0, specs.gyro_bias, 3)
-        ab = r_bias.normal(0.0, specs.accel_bias, 3)
-        self.gyro_bias = gb if gyro_bias is None else np.array(_vec3(gyro_bias, "gyro_bias"))
-        self.accel_bias = ab if accel_bias is None else np.array(_vec3(accel_bias, "accel_bias"))
-
-        self._sway = _SwayModel(sway, r_sway)
-        self.C_ref = dcm_from_rpy(rpy * _DEG)
-        self.w_ie_n = earth_rate_enu(self.lat_rad)
-        self.g_n = gravity_enu(self.lat_rad, self.height_m)
-        # inertial rotation of n over one interval, seen in the reference body axes:
-        # C_ref^T exp(w dt) C_ref = exp(C_ref^T w dt), the latter keeps full relative precision
-        self._E = so3_exp(self.C_ref.T @ self.w_ie_n * self.dt)
-
-        th0, _, _, _ = self._sway.evaluate(np.zeros(1))
-        self.C0 = self.C_ref @ so3_exp(th0[0])
-        _, _, _, _, _, v0 = self._truth(np.zeros(1))
-        self.v0 = v0[0]
-
-        # error-process state
-        self._a = float(np.exp(-self.dt / specs.bias_correlation_time))
-        self._gw = (r_gw.normal(0.0, specs.gyro_bias_instability, 3) if self.noise
-                    else np.zeros(3))
-        self._aw = (r_aw.normal(0.0, specs.accel_bias_instability, 3) if self.noise
-                    else np.zeros(3))
-        self._gq_res = np.zeros(3)
-        self._aq_res = np.zeros(3)
+        self._runs = _Runs([seed], rate, self.lat_rad, self.height_m, dcm_from_rpy(rpy * _DEG),
+                           specs, sway, self.noise, *biases)
+        self.C_ref, self.w_ie_n, self.g_n = self._runs.C_ref, self._runs.w_ie_n, self._runs.g_n
+        self.gyro_bias, self.accel_bias = self._runs.gyro.bias[0], self._runs.accel.bias[0]
+        self.C0, self.v0 = self._runs.C0[0], self._runs.v0[0]
 
         self._chunk_start = 0            # sample index of the next chunk to generate
+        self._end: int | None = None     # total samples that will be asked for, when known
         self._buf: dict[str, np.ndarray] | None = None
         self._buf_pos = 0
         self.samples_emitted = 0
 
-    # -- truth --------------------------------------------------------------------------------
-    def _truth(self, s: np.ndarray):
-        """True R (sway), C_b^n, displacement and velocity at times ``s`` since t0."""
-        theta, omega, d, d_dot = self._sway.evaluate(s)
-        R = so3_exp(theta)
-        C = self.C_ref @ R
-        lever = self._sway.lever
-        p = d + (R - np.eye(3)) @ lever @ self.C_ref.T
-        v = d_dot + np.einsum("mij,mj->mi", C, np.cross(omega, lever))
-        return theta, R, C, p, d, v
-
     def _generate_chunk(self) -> dict[str, np.ndarray]:
-        k0, m, dt = self._chunk_start, _CHUNK, self.dt
-        # times of samples k0-1 .. k0+m-1 (index -1 is t0 itself)
-        s = np.arange(k0, k0 + m + 1, dtype=float) / self.rate
-        _, R, C, p, _, v = self._truth(s)
-        dC = np.swapaxes(R[:-1], -1, -2) @ self._E @ R[1:]
-        gyro_ideal = so3_log(dC) / dt
-        accel_ideal = np.einsum("mji,mj->mi", C[1:], (v[1:] - v[:-1]) / dt - self.g_n)
+        k0 = self._chunk_start
+        m = _CHUNK if self._end is None else min(_CHUNK, self._end - k0)
+        gyro, accel = np.empty((m, 1, 3)), np.empty((m, 1, 3))
+        c = self._runs.chunk(k0, m, slice(0, 1), gyro, accel)
+        self._chunk_start += _CHUNK
+        R, C, d, v = (c[k][:, 0] for k in ("R", "C", "d", "v"))
+        p = d + (R - np.eye(3)) @ np.array(self.sway.lever_arm) @ self.C_ref.T
+        zeros = np.zeros((m, 3))
 
-        sp = self.specs
-        gyro = gyro_ideal + self.gyro_bias
-        accel = accel_ideal + self.accel_bias
-        gdrift = np.zeros((m, 3))
-        adrift = np.zeros((m, 3))
-        if self.noise:
-            sq = np.sqrt(self.rate)
-            # draw unconditionally so each stream's sequence never depends on the specs
-            wg = self._rng_gn.standard_normal((m, 3))
-            wa = self._rng_an.standard_normal((m, 3))
-            gyro += sp.gyro_arw * sq * wg
-            accel += sp.accel_vrw * sq * wa
-            c = np.sqrt(1.0 - self._a ** 2)
-            if sp.gyro_bias_instability > 0.0:
-                gdrift = _ar1_scan(self._gw, c * sp.gyro_bias_instability
-                                   * self._rng_gw.standard_normal((m, 3)), self._a)
-                self._gw = gdrift[-1]
-                gyro += gdrift
-            if sp.accel_bias_instability > 0.0:
-                adrift = _ar1_scan(self._aw, c * sp.accel_bias_instability
-                                   * self._rng_aw.standard_normal((m, 3)), self._a)
-                self._aw = adrift[-1]
-                accel += adrift
-        if sp.gyro_quantization > 0.0:
-            inc, self._gq_res = _quantize(gyro * dt, sp.gyro_quantization, self._gq_res)
-            gyro = inc / dt
-        if sp.accel_quantization > 0.0:
-            inc, self._aq_res = _quantize(accel * dt, sp.accel_quantization, self._aq_res)
-            accel = inc / dt
+        def rows(x):                     # without sway: the one row, over the whole chunk
+            return np.broadcast_to(x, (m,) + x.shape[1:])
 
-        self._chunk_start += m
         return {
-            "t": self.t0 + s[1:], "gyro": gyro, "accel": accel, "C_true": C[1:],
-            "quat_true": quat_from_dcm(C[1:]), "v_true": v[1:], "p_true": p[1:],
-            "gyro_ideal": gyro_ideal, "accel_ideal": accel_ideal,
-            "gyro_drift": gdrift, "accel_drift": adrift,
+            "t": self.t0 + c["s"][1:], "gyro": gyro[:, 0], "accel": accel[:, 0],
+            "C_true": rows(C[1:]), "quat_true": rows(quat_from_dcm(C[1:])),
+            "v_true": rows(v[1:]), "p_true": rows(p[1:]),
+            "gyro_ideal": rows(c["gyro_ideal"][:, 0]),
+            "accel_ideal": rows(c["accel_ideal"][:, 0]),
+            "gyro_drift": zeros if c["gyro_drift"] is None else c["gyro_drift"][:, 0],
+            "accel_drift": zeros if c["accel_drift"] is None else c["accel_drift"][:, 0],
         }
 
     # -- public -------------------------------------------------------------------------------
@@ -584,10 +720,10 @@ class ImuSimulator:
         pieces: list[dict[str, np.ndarray]] = []
         need = int(n)
         while need > 0:
-            if self._buf is None or self._buf_pos >= _CHUNK:
+            if self._buf is None or self._buf_pos >= len(self._buf["t"]):
                 self._buf = self._generate_chunk()
                 self._buf_pos = 0
-            take = min(need, _CHUNK - self._buf_pos)
+            take = min(need, len(self._buf["t"]) - self._buf_pos)
             sl = slice(self._buf_pos, self._buf_pos + take)
             pieces.append({k: v[sl] for k, v in self._buf.items()})
             self._buf_pos += take
@@ -605,6 +741,16 @@ class ImuSimulator:
             C0=self.C0.copy(), gyro_bias=self.gyro_bias.copy(),
             accel_bias=self.accel_bias.copy(), lat_rad=self.lat_rad, height_m=self.height_m,
             rate=self.rate, specs=self.specs, sway=self.sway, v0=self.v0.copy(), **arrays)
+
+
+def _samples(duration: float, rate: float) -> int:
+    duration = _finite(duration, "duration")
+    if duration <= 0.0:
+        raise ValueError(f"duration must be > 0 s, got {duration!r}")
+    n = int(np.floor(duration * rate + 1e-9))
+    if n < 1:
+        raise ValueError(f"duration {duration!r} s is shorter than one sample at {rate} Hz")
+    return n
 
 
 def simulate(duration: float, rate: float = 100.0, lat_deg: float = 34.0, height_m: float = 0.0,
@@ -630,13 +776,115 @@ def simulate(duration: float, rate: float = 100.0, lat_deg: float = 34.0, height
         Non-finite or out-of-range arguments, unknown grade or sway preset, duration shorter
         than one sample.
     """
-    duration = _finite(duration, "duration")
-    if duration <= 0.0:
-        raise ValueError(f"duration must be > 0 s, got {duration!r}")
     sim = ImuSimulator(rate=rate, lat_deg=lat_deg, height_m=height_m, rpy_deg=rpy_deg,
                        specs=specs, sway=sway, sway_amplitude=sway_amplitude, seed=seed, t0=t0,
                        gyro_bias=gyro_bias, accel_bias=accel_bias, noise=noise)
-    n = int(np.floor(duration * sim.rate + 1e-9))
-    if n < 1:
-        raise ValueError(f"duration {duration!r} s is shorter than one sample at {sim.rate} Hz")
-    return sim.next_block(n)
+    sim._end = _samples(duration, sim.rate)
+    return sim.next_block(sim._end)
+
+
+@dataclass
+class RunsResult:
+    """n runs on one time line (:func:`simulate_runs`); run ``i`` is ``simulate(seed=seeds[i])``.
+
+    Attributes
+    ----------
+    t : (N,) s — sample stamps, as :attr:`SimResult.t`.
+    gyro : (N, n, 3) rad/s; accel : (N, n, 3) m/s^2 — measured samples of every run.
+    C0 : (n, 3, 3) — true ``C_b^n`` of each run at t0.
+    gyro_bias : (n, 3) rad/s; accel_bias : (n, 3) m/s^2 — the constant biases, body.
+    truth_at : (K,) — sample indices at which the truth is given.
+    C_true : (K, n, 3, 3) — true ``C_b^n`` at ``t[truth_at]``.
+    """
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    C0: np.ndarray
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    truth_at: np.ndarray
+    C_true: np.ndarray
+
+
+#: Sample-runs per vectorised step of simulate_runs: static (noise buffer), swaying (truth).
+_BLOCK, _BLOCK_SWAY = 2 ** 17, 2 ** 13
+
+
+def _per_run(x, n: int, name: str) -> np.ndarray:
+    """``x`` as a finite (3,) array (shared by the runs) or (n, 3) array (one row per run)."""
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        a = np.full(0, np.nan)
+    if a.shape not in ((3,), (n, 3)) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be 3 finite numbers or ({n}, 3) of them, got {x!r}")
+    return a
+
+
+def simulate_runs(duration: float, seeds: Sequence[int | None], rate: float = 100.0,
+                  lat_deg: float = 34.0, height_m: float = 0.0,
+                  rpy_deg: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
+                  specs: SensorSpecs | str = "navigation", sway: SwayProfile | str = "none",
+                  sway_amplitude: float = 1.0, t0: float = 0.0,
+                  gyro_bias: Sequence[float] | np.ndarray | None = None,
+                  accel_bias: Sequence[float] | np.ndarray | None = None, noise: bool = True,
+                  truth_at: Sequence[int] = ()) -> RunsResult:
+    """Simulate n runs at once, vectorised across runs: run ``i`` is, bit for bit, ``simulate(
+    duration, ..., seed=seeds[i])`` with run ``i``'s attitude and biases (its samples, C0,
+    biases, and C_true at ``truth_at``).
+
+    Without sway the error-free samples are computed for one interval only (shared by the runs
+    unless the attitude is per run) and each run only adds its biases and noise; with sway
+    each run's truth is computed, for blocks of runs at a time.
+
+    Parameters
+    ----------
+    duration : s (> 0) — N = floor(duration * rate) samples per run.
+    seeds : n ints (or None = fresh entropy) — the seed of each run.
+    rpy_deg : (3,) shared or (n, 3) per run, deg — mean attitude (as :class:`ImuSimulator`).
+    gyro_bias, accel_bias : None (drawn per run), (3,) shared or (n, 3) per run.
+    truth_at : sample indices in [0, N) at which C_true is returned.
+    Other parameters : as :class:`ImuSimulator`.
+
+    Returns
+    -------
+    RunsResult.
+
+    Raises
+    ------
+    ValueError
+        As :func:`simulate`; no seeds, wrong shapes, truth_at out of range.
+    """
+    rate, lat_deg, height_m, t0, specs, sway = _setup(rate, lat_deg, height_m, t0, specs, sway,
+                                                      sway_amplitude)
+    N = _samples(duration, rate)
+    seeds = list(seeds)
+    if not seeds:
+        raise ValueError("seeds must hold at least one seed")
+    for s in seeds:
+        _check_seed(s)
+    n = len(seeds)
+    rpy = _per_run(rpy_deg, n, "rpy_deg")
+    biases = [None if b is None else np.broadcast_to(_per_run(b, n, name), (n, 3))
+              for b, name in ((gyro_bias, "gyro_bias"), (accel_bias, "accel_bias"))]
+    truth_at = np.asarray(truth_at, dtype=int).reshape(-1)
+    if np.any((truth_at < 0) | (truth_at >= N)):
+        raise ValueError(f"truth_at must be sample indices in [0, {N}), got {truth_at!r}")
+    block = _BLOCK if sway.is_static else _BLOCK_SWAY
+    runs = _Runs(seeds, rate, lat_deg * _DEG, height_m, dcm_from_rpy(rpy * _DEG), specs, sway,
+                 bool(noise), *biases, block=block)
+
+    gyro, accel = np.empty((N, n, 3)), np.empty((N, n, 3))
+    C_true = np.empty((len(truth_at), n, 3, 3))
+    for k0 in range(0, N, _CHUNK):
+        m = min(_CHUNK, N - k0)
+        nb = max(1, block // m)
+        want = (truth_at >= k0) & (truth_at < k0 + m)
+        for j0 in range(0, n, nb):
+            r = slice(j0, min(n, j0 + nb))
+            C = runs.chunk(k0, m, r, gyro[k0:k0 + m, r], accel[k0:k0 + m, r])["C"][1:]
+            C_true[want, r] = C[truth_at[want] - k0] if len(C) == m else C
+    return RunsResult(t=t0 + np.arange(1, N + 1) / rate, gyro=gyro, accel=accel, C0=runs.C0,
+                      gyro_bias=runs.gyro.bias, accel_bias=runs.accel.bias, truth_at=truth_at,
+                      C_true=C_true)

@@ -7,6 +7,9 @@ What is proved here:
 - chunking the runs (N filters of 1 run vs one filter of N runs) changes nothing, so the
   vectorised filter treats every run independently and the per-run random draws do not
   depend on the chunk size;
+- the batched simulation of a chunk gives run ``i`` exactly ``simulate(seed=seed + i)``
+  (samples, truth at the output times, initial estimate, limit error), static or swaying,
+  fixed or random truth, fixed or drawn biases;
 - ``--paper`` (8 runs, 150 s) reproduces the paper's ordering: the constant model is the
   fastest (smallest heading error at 30, 60 and 100 s, settles first) and is at the limit
   accuracy at 150 s within 1.2 x |limit| plus its own noise std; its NEES is within bounds;
@@ -30,7 +33,9 @@ import pytest
 
 from sins_align import montecarlo as mc
 from sins_align.earth import OMEGA_IE, gravity
-from sins_align.specs import DEG, DPH, UG
+from sins_align.rotation import dcm_from_rpy, rpy_from_dcm
+from sins_align.sim import simulate
+from sins_align.specs import DEG, DPH, UG, grade_specs, limit_error
 
 PAPER_RUNS, PAPER_DURATION = 8, 150.0
 
@@ -147,6 +152,44 @@ def test_chunks_of_runs_change_nothing():
     # the random truths/initial estimates really differ between runs (large spread)
     assert max(res[0]["curves"][0]["max_abs_deg"][0]) > 60.0
     assert res[0]["scenario"]["true_rpy_deg"] == "random"
+
+
+@pytest.mark.parametrize("kw", [
+    dict(fixed_biases=True),                                            # the paper's setting
+    dict(true_rpy_deg=None, initial_error_deg=None),
+    dict(sway="car", true_rpy_deg=None, fixed_biases=True),
+    dict(sway="ship", sway_amplitude=0.5, true_rpy_deg=(10.0, -20.0, 200.0),
+         specs=grade_specs("tactical"), grade="tactical"),
+], ids=["static-fixed", "static-random", "car-random-fixed-biases", "ship-drawn-biases"])
+def test_simulated_chunk_is_simulate_run_by_run(kw):
+    """Run i of a chunk is sins_align.sim.simulate(seed=seed + i), bit for bit: W, F, the
+    truth at every output time, the initial estimate; the limit error is its biases' limit."""
+    scn = mc.Scenario(runs=7, duration=45.0, every=4.0, seed=21, **kw)
+    first, count = 2, 4
+    data = mc.simulate_chunk(scn, first, count)
+    idx = scn.output_indices()
+    g = gravity(scn.latitude_deg * DEG, scn.height_m)
+    for j in range(count):
+        i = first + j
+        rpy = scn.true_rpy_deg
+        if rpy is None:
+            rpy = rpy_from_dcm(mc._uniform_rotation(np.random.default_rng([scn.seed, i, 1]))) / DEG
+        bias = (dict(gyro_bias=np.full(3, scn.specs.gyro_bias),
+                     accel_bias=np.full(3, scn.specs.accel_bias)) if scn.fixed_biases else {})
+        s = simulate(scn.duration, scn.rate, scn.latitude_deg, scn.height_m, rpy_deg=tuple(rpy),
+                     specs=scn.specs, sway=scn.sway, sway_amplitude=scn.sway_amplitude,
+                     seed=scn.seed + i, noise=scn.noise, **bias)
+        assert np.array_equal(data["W"][:, j], s.gyro)
+        assert np.array_equal(data["F"][:, j], s.accel)
+        assert np.array_equal(data["C_out"][:, j], np.concatenate([s.C0[None],
+                                                                   s.C_true[idx[1:] - 1]]))
+        est = (mc._uniform_rotation(np.random.default_rng([scn.seed, i, 2]))
+               if scn.initial_error_deg is None
+               else s.C0 @ dcm_from_rpy(np.array(scn.initial_error_deg) * DEG).T)
+        assert np.array_equal(data["C_est0"][j], est)
+        np.testing.assert_allclose(data["limit"][j], limit_error(
+            scn.latitude_deg * DEG, s.C0 @ s.accel_bias, s.C0 @ s.gyro_bias, g), rtol=1e-14)
+    assert not np.array_equal(data["W"][:, 0], data["W"][:, 1])
 
 
 # ------------------------------------------------------------------------------ --paper

@@ -1,4 +1,5 @@
-"""Tests for the IMU simulator (sins_align.sim): exactness, statistics, determinism, streaming."""
+"""Tests for the IMU simulator (sins_align.sim): exactness, statistics, determinism, streaming,
+and the batch of runs (simulate_runs) equal to simulate() run by run."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,8 +7,9 @@ import pytest
 
 from sins_align.earth import OMEGA_IE, earth_rate_enu, gravity, gravity_enu
 from sins_align.rotation import dcm_from_quat, dcm_from_rpy, so3_exp, so3_log
-from sins_align.sim import (SWAY_PRESETS, ImuSimulator, SimResult, SwayProfile, _ar1_scan,
-                            simulate, sway_profile)
+from sins_align import sim as sim_module
+from sins_align.sim import (_STREAMS, SWAY_PRESETS, ImuSimulator, SimResult, SwayProfile,
+                            _ar1_scan, _stream, simulate, simulate_runs, sway_profile)
 from sins_align.specs import DEG, grade_specs
 
 RPY = (30.0, -50.0, 120.0)      # a deliberately non-trivial mean attitude, deg
@@ -308,3 +310,83 @@ def test_presets_exist_and_bad_arguments_raise():
         ImuSimulator().next_block(-1)
     with pytest.raises(ValueError, match="burst_damping"):
         SwayProfile(burst_damping=1.5)
+
+
+def test_child_streams_are_the_spawned_ones():
+    """Each child stream a run makes on its own is the generator default_rng(seed).spawn(6)
+    gives at that position, so 'everything comes from default_rng(seed)' stays true."""
+    for seed in (0, 7, 2 ** 40 + 3):
+        spawned = np.random.default_rng(seed).spawn(6)
+        for i, name in enumerate(_STREAMS):
+            own = _stream(np.random.SeedSequence(seed), name)
+            assert np.array_equal(own.standard_normal(50), spawned[i].standard_normal(50)), name
+    assert not np.array_equal(_stream(np.random.SeedSequence(1), "gyro_noise").random(5),
+                              _stream(np.random.SeedSequence(1), "accel_noise").random(5))
+
+
+WANDER = grade_specs("tactical").with_(gyro_bias_instability=1e-5, accel_bias_instability=1e-4,
+                                       bias_correlation_time=2.0, gyro_quantization=1e-7,
+                                       accel_quantization=1e-4)
+_RUNS_CASES = {
+    # name: (duration, sway, random truth, fixed biases, extra simulate() arguments)
+    "static": (50.0, "none", False, False, {}),
+    "static-fixed-biases": (50.0, "none", False, True, {}),
+    "static-random-truth": (50.0, "none", True, False, {}),
+    "static-random-truth-fixed-biases": (50.0, "none", True, True, {}),
+    "car": (45.0, "car", False, False, {}),
+    "car-fixed-biases": (45.0, "car", False, True, {}),
+    "car-random-truth": (45.0, "car", True, False, {}),
+    "ship-random-truth-fixed-biases": (45.0, "ship", True, True, {"specs": "consumer"}),
+    "wander-quantised-200hz": (30.0, "car", True, False,
+                               {"specs": WANDER, "rate": 200.0, "lat_deg": -20.0, "t0": 12.5}),
+    "static-wander-quantised": (45.0, "none", False, True, {"specs": WANDER}),
+    "noise-free": (45.0, "ship", False, False, {"noise": False, "height_m": 300.0}),
+}
+
+
+@pytest.mark.parametrize("case", list(_RUNS_CASES))
+def test_simulate_runs_is_simulate_run_by_run(case, monkeypatch):
+    """simulate_runs(seeds) gives every run bit for bit what simulate(seed=seeds[i]) gives:
+    samples (over more than one internal chunk), C0, biases, C_true at the requested samples;
+    with shared or per-run attitude and biases, with and without sway, with wander and
+    quantisation. Small vectorisation blocks make several blocks of runs per chunk."""
+    duration, sway, random_truth, fixed, extra = _RUNS_CASES[case]
+    monkeypatch.setattr(sim_module, "_BLOCK", 3 * 4096)
+    monkeypatch.setattr(sim_module, "_BLOCK_SWAY", 3 * 4096)
+    seeds = [5, 6, 7, 8, 9, 10, 11]
+    rng = np.random.default_rng(3)
+    rpy = rng.uniform(-180.0, 180.0, (len(seeds), 3)) if random_truth else RPY
+    bias = dict(gyro_bias=rng.normal(0.0, 1e-6, (len(seeds), 3)), accel_bias=(1e-3, -2e-3, 5e-4)
+                ) if fixed else {}
+    kw = dict(sway=sway, **extra)
+    n_samples = int(duration * kw.get("rate", 100.0))
+    truth_at = [0, 1, 4095, 4096, n_samples - 1]
+    r = simulate_runs(duration, seeds, rpy_deg=rpy, truth_at=truth_at, **bias, **kw)
+    assert r.gyro.shape == r.accel.shape == (n_samples, len(seeds), 3) and n_samples > 4096
+    assert r.C_true.shape == (len(truth_at), len(seeds), 3, 3)
+    for i, seed in enumerate(seeds):
+        one = simulate(duration, seed=seed, rpy_deg=rpy[i] if random_truth else rpy,
+                       **{k: np.broadcast_to(v, (len(seeds), 3))[i] for k, v in bias.items()},
+                       **kw)
+        pairs = [("gyro", r.gyro[:, i], one.gyro), ("accel", r.accel[:, i], one.accel),
+                 ("C0", r.C0[i], one.C0), ("C_true", r.C_true[:, i], one.C_true[truth_at]),
+                 ("gyro_bias", r.gyro_bias[i], one.gyro_bias),
+                 ("accel_bias", r.accel_bias[i], one.accel_bias), ("t", r.t, one.t)]
+        for name, got, want in pairs:
+            assert np.array_equal(got, want), (name, i)
+    # the runs differ (own noise or biases, own sway)
+    assert not np.array_equal(r.gyro[:, 0], r.gyro[:, 1])
+    if sway != "none":
+        assert not np.array_equal(r.C_true[:, 0], r.C_true[:, 1])
+
+
+def test_simulate_runs_bad_arguments():
+    """No seeds, wrong shapes, truth_at out of range and the usual bad numbers raise."""
+    bad = [(dict(seeds=[]), "seeds"), (dict(rpy_deg=np.zeros((3, 3))), "rpy_deg"),
+           (dict(gyro_bias=np.zeros((2, 2))), "gyro_bias"), (dict(truth_at=[100]), "truth_at"),
+           (dict(truth_at=[-1]), "truth_at"), (dict(seeds=[1, 1.5]), "seed"),
+           (dict(rate=0.0), "rate"), (dict(duration=0.001), "shorter than one sample")]
+    for kw, msg in bad:
+        args = dict(duration=1.0, seeds=[1, 2]) | kw
+        with pytest.raises(ValueError, match=msg):
+            simulate_runs(**args)
