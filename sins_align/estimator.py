@@ -208,7 +208,9 @@ class AlignmentFilter:
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
         self._K, self._W = earth_poly(self.w_ie)
         self._K2 = self._K @ self._K
-        self._Mstack = np.vstack([np.eye(3), self._K.T, self._K2.T])
+        # (9, 3): row 3 i + k holds row i of M_k^T, M = I, K, K^2 (see _advance_segments)
+        self._Mstack = np.stack([np.eye(3), self._K, self._K2], axis=-1).transpose(1, 2, 0) \
+            .reshape(9, 3)
         self._cache: dict = {}
         self.on_update = None          # fast path: called with the sample index after updates
         self._rerun = False
@@ -370,7 +372,7 @@ class AlignmentFilter:
         period = self._period()
         uniform = np.ndim(dt) == 0
         dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
-        # rows k of A[i] (N, 3, 3) are the sums A0, Aa, Ab: C0 A_k = (A[i] C0^T)[:, k], and
+        # columns k of A[i] (N, 3, 3) are the sums A0, Aa, Ab: C0 A_k = (C0 A[i])[:, :, k], and
         # the velocity increment sum_k M_k C0 A_k is one (N, 9) @ (9, 3) product
         Mk = self._Mstack
         H = measurement_matrix("constant")
@@ -380,8 +382,7 @@ class AlignmentFilter:
             Ti = m * dt if uniform else float(segT[i])
             dti = dt if uniform else float(dt[ends[i] - 1])
             C0, v0 = self.C, self.v
-            C0T = C0.mT
-            self.v = v0 + ((A[i] @ C0T).reshape(n, 9) @ Mk + self.g_n * Ti)
+            self.v = v0 + ((C0 @ A[i]).reshape(n, 9) @ Mk + self.g_n * Ti)
             E = self._earth_rot(m, dt) if uniform else so3_exp(-self.w_ie * Ti)
             self.C = E @ (C0 @ dcm_end[i])
             if track_B:
@@ -389,7 +390,7 @@ class AlignmentFilter:
             self.t_int += Ti
             if self.fine:
                 self.v_sum = self.v_sum + v0 * Ti + (
-                    (V[i] @ C0T).reshape(n, 9) @ Mk
+                    (C0 @ V[i]).reshape(n, 9) @ Mk
                     + self.g_n * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i])))
             self.t_acc += Ti
             jumps = (lambda: self._disc_m(m, dt)) if uniform else (

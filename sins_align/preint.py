@@ -201,19 +201,53 @@ def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: boo
     S = T // m
     s = dt * np.arange(1, m + 1)
     wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag))        # (k, m)
-    A = np.empty((S, N, len(wts), 3))
+    A = np.empty((S, N, 3, len(wts)))
     dcm = np.empty((S, N, 3, 3))
     per = max(1, _PIECE // N)
+    work = np.empty((6, min(per, S), m, N))           # reused: no page faults per piece
     for a in range(0, S, per):
         b = min(S, a + per)
-        rot, u = (np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2),
-                              dt, out=np.empty((3, b - a, m, N)))
-                  for x in (w, f))
-        q = _qexp_c(rot[0], rot[1], rot[2])
-        _scan(q, u)
-        A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 3, 0, 1)
-        dcm[a:b] = dcm_from_quat_components(*(c[:, -1] for c in q))
+        rot, u = work[:3, :b - a], work[3:, :b - a]
+        for out, x in ((rot, w), (u, f)):
+            np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2), dt,
+                        out=out)
+        if m >= 16 and (b - a) * N < 1000:            # long intervals, few runs: whole arrays
+            q = _qexp_c(rot[0], rot[1], rot[2])
+            _scan(q, u)
+            qend = tuple(c[:, -1] for c in q)
+        else:
+            qend = _running_scan(rot, u)
+        A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 3, 1, 0)
+        dcm[a:b] = dcm_from_quat_components(*qend)
     return dcm, A, float(s[-1]), float((s * dt).sum())
+
+
+def _running_scan(rot, u):
+    """Rotation vectors ``rot`` (3, S, m, ...) of m steps: rotate each ``u`` (same shape) by
+    the product of the steps up to and including its own, in place; return the product of
+    all m (quaternion components). Position by position: only step-sized scratch arrays."""
+    q = None
+    buf = [np.empty_like(rot[0, :, 0]) for _ in range(9)]
+    mul = np.multiply
+    for j in range(rot.shape[2]):
+        e = _qexp_c(*(rot[i, :, j] for i in range(3)))
+        if q is None:
+            q = tuple(np.array(c) for c in e)
+        else:
+            ax, ay, az, aw = q
+            bx, by, bz, bw = e
+            ox, oy, oz, ow, tmp = buf[4:]
+            mul(aw, bx, out=ox); mul(ax, bw, out=tmp); ox += tmp            # noqa: E702
+            mul(ay, bz, out=tmp); ox += tmp; mul(az, by, out=tmp); ox -= tmp  # noqa: E702
+            mul(aw, by, out=oy); mul(ax, bz, out=tmp); oy -= tmp            # noqa: E702
+            mul(ay, bw, out=tmp); oy += tmp; mul(az, bx, out=tmp); oy += tmp  # noqa: E702
+            mul(aw, bz, out=oz); mul(ax, by, out=tmp); oz += tmp            # noqa: E702
+            mul(ay, bx, out=tmp); oz -= tmp; mul(az, bw, out=tmp); oz += tmp  # noqa: E702
+            mul(aw, bw, out=ow); mul(ax, bx, out=tmp); ow -= tmp            # noqa: E702
+            mul(ay, by, out=tmp); ow -= tmp; mul(az, bz, out=tmp); ow -= tmp  # noqa: E702
+            buf[4:8], q = list(q), (ox, oy, oz, ow)
+        _qrot_c(q, tuple(u[i, :, j] for i in range(3)), buf[:3] + [buf[8]])
+    return q
 
 
 def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
@@ -234,7 +268,7 @@ def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
     s = np.cumsum(dtp, axis=1)                        # time since the interval's start
     seg_t = s[:, -1]
     ws = _weights(dtp, s, seg_t[:, None], mean_weights, w_ie_mag)
-    A = np.einsum("ksl,jsln->snkj", np.array(ws) * valid, u)
+    A = np.einsum("ksl,jsln->snjk", np.array(ws) * valid, u)
     last = (np.arange(S), lengths - 1)
     return dcm_from_quat_components(*(c[last] for c in q)), A, seg_t, (s * dtp).sum(axis=1)
 
@@ -256,8 +290,8 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     Returns
     -------
     dcm_end : ndarray (S, N, 3, 3) — Q_m as a DCM (body rotation over the interval).
-    A : ndarray (S, N, 3, 3) — rows A0, Aa, Ab of each run (m/s).
-    V : ndarray (S, N, 3, 3) or None — rows V0, Va, Vb, the mean-velocity sums (m).
+    A : ndarray (S, N, 3, 3) — columns A0, Aa, Ab of each run (m/s).
+    V : ndarray (S, N, 3, 3) or None — columns V0, Va, Vb, the mean-velocity sums (m).
     seg_t : ndarray (S,) — duration of each interval, s.
     s_dt : ndarray (S,) — sum over the interval of (time since its start) x dt, s^2.
     """
@@ -276,8 +310,8 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
                                for p in zip(*parts))
     else:
         dcm, A, seg_t, s_dt = _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights)
-    V = A[:, :, 3:] if mean_weights else None
-    return dcm, A[:, :, :3], V, seg_t, s_dt
+    V = np.ascontiguousarray(A[..., 3:]) if mean_weights else None
+    return dcm, np.ascontiguousarray(A[..., :3]), V, seg_t, s_dt
 
 
 def total_rotation(dt, w: np.ndarray) -> np.ndarray:
