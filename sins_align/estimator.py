@@ -706,7 +706,9 @@ class AlignmentFilter:
         A = np.vander(tn, 4)
         Y = vs.reshape(len(dt), -1)
         coef, *_ = np.linalg.lstsq(A, Y, rcond=None)
-        res = Y - A @ coef
+        # running sum of the residuals: any interval's sum is a difference of two rows
+        csum = np.cumsum(Y - A @ coef, axis=0)
+        csum = np.concatenate([np.zeros((1, csum.shape[1])), csum])
         period = base = c.fine_update_period
         r_std = None
         for mult in (1, 2, 5, 10, 20):
@@ -715,10 +717,10 @@ class AlignmentFilter:
             n_int = int(idx[-1])
             if n_int < 8:
                 break
-            keep = idx < n_int
-            sums = np.zeros((n_int, Y.shape[1]))
-            np.add.at(sums, idx[keep], res[keep])
-            means = sums / np.maximum(np.bincount(idx[keep], minlength=n_int), 1)[:, None]
+            # idx never decreases: interval j holds the samples edges[j] .. edges[j+1] - 1
+            edges = np.searchsorted(idx, np.arange(n_int + 1))
+            counts = np.diff(edges)
+            means = (csum[edges[1:]] - csum[edges[:-1]]) / np.maximum(counts, 1)[:, None]
             d = np.diff(means, axis=0)
             var = 0.5 * np.mean(d ** 2, axis=0)
             r1 = np.sum(d[1:] * d[:-1], axis=0) / np.maximum(np.sum(d * d, axis=0), 1e-300)

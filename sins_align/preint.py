@@ -345,7 +345,7 @@ def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndar
     q = tuple(c[0] for c in q)
     u = _qrot(q, f) * dt[:, None, None]                # (T, N, 3) body frame at start
     s = np.cumsum(dt)
-    a = np.einsum("nij,tnj->tni", C0, u)
+    a = (u.transpose(1, 0, 2) @ C0.mT).transpose(1, 0, 2)   # C0 u, one product per run
     W = np.linalg.norm(w_ie)
     K = _unit_skew(-w_ie / W)
     sa, sb = np.sin(W * s)[:, None, None], (1.0 - np.cos(W * s))[:, None, None]
