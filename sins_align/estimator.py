@@ -52,7 +52,7 @@ REJECT_REASONS = (
 
 #: blocks of at least this many clean samples take the fast path in Aligner.update
 FAST_MIN_BLOCK = 64
-FAST_MAX_BLOCK = 8192
+FAST_MAX_BLOCK = 65536
 
 #: gain schedules of the constant model, shared between filter instances (see _cov_block)
 _SCHEDULE_CACHE: dict = {}
@@ -906,18 +906,21 @@ class Aligner:
         while k < len(t):
             j = self._clean_run(t, w, f, k)
             if j - k >= FAST_MIN_BLOCK:
-                n += self._accept_block(t[k:j], w[k:j], f[k:j])
-                k = j
-            else:
-                n += self._sample(float(t[k]), w[k], f[k])
-                k += 1
+                used = self._accept_block(t[k:j], w[k:j], f[k:j])
+                n += used
+                k += used
+                if k == j:
+                    continue
+                # else sample k closes a units-check window that flags the rates: below
+            n += self._sample(float(t[k]), w[k], f[k])
+            k += 1
         return n
 
     def _clean_run(self, t, w, f, k) -> int:
         """End index of the run of samples from k that the per-sample checks would all accept
-        as ordinary samples (intervals within 40 % of nominal, no gap, no rejection, no
-        units-check window closing): those can take the filter's fast path with the same
-        results."""
+        as ordinary samples (intervals within 40 % of nominal, no gap, no rejection): those
+        can take the filter's fast path with the same results (a units-check window that
+        would flag the rates is cut off later, in _accept_block)."""
         c = self.config
         if (c.model != "constant" or self.t_last is None or self.nominal_dt is None
                 or self.units_suspect or self._t_prev_raw != self.t_last
@@ -935,18 +938,18 @@ class Aligner:
               & (fn >= 0.25 * self.g) & (np.abs(fn - self.g) <= c.specific_force_tolerance * self.g)
               & (wn <= c.max_angular_rate))
         m = len(tt) if ok.all() else int(np.argmin(ok))
-        if self._units is not None and m:
-            # stop before the sample that closes the current units-check window
-            T = self._units.T + np.cumsum(dts[:m])
-            closing = np.nonzero(T >= self._units.window)[0]
-            if len(closing):
-                m = int(closing[0])
         return k + m
 
     def _accept_block(self, t, w, f) -> int:
+        """Clean samples through the fast path: all of them, or those before the first
+        units-check window closing that would flag the rates. Returns how many."""
         dts = np.diff(t, prepend=self.t_last)
         if self._units is not None:
-            self._units.add_block(dts, w, f)
+            m = self._units.add_block(dts, w, f)
+            if m < len(t):
+                if m == 0:
+                    return 0
+                t, w, f, dts = t[:m], w[:m], f[:m], dts[:m]
         self.t_last = self._t_prev_raw = float(t[-1])
         self.samples_used += len(t)
 
@@ -1035,9 +1038,17 @@ class Aligner:
         if c.backtrack and not self.filter.backtracked:
             return False
         std = np.sqrt(np.diag(self.covariance))
-        lim = self.limit_std
-        if self.filter.steady_std is not None:
-            lim = np.maximum(lim, self.filter.steady_std[0])
+        ok = self._within(std, self.limit_std)
+        if not ok and self.filter.backtracked:
+            # the steady-state std can only raise the bound: computed (once, 1800 s of
+            # covariance recursion) only when the limit alone does not decide
+            steady = self.filter.steady_std
+            if steady is not None:
+                ok = self._within(std, np.maximum(self.limit_std, steady[0]))
+        return bool(ok)
+
+    def _within(self, std: np.ndarray, lim: np.ndarray) -> bool:
+        c = self.config
         lvl = c.aligned_min_level_std_deg * DEG
         ok = (std[0] <= max(c.aligned_std_ratio * lim[0], lvl)
               and std[1] <= max(c.aligned_std_ratio * lim[1], lvl))
@@ -1145,14 +1156,47 @@ class _UnitsMonitor:
         self.f_head = np.zeros(3)
         self.f_tail = np.zeros(3)
 
-    def add_block(self, dts, w, f):
-        """Samples that do not close the window (Aligner._clean_run guarantees it)."""
-        self.B = self.B @ dcm_from_quat(total_rotation(dts, w))
-        T = self.T + np.cumsum(dts)
+    def add_block(self, dts, w, f) -> int:
+        """Samples of a clean run (intervals within 40 % of nominal). Windows that close
+        inside it are judged as :meth:`add` would; the block stops before the closing
+        sample of a window that would flag the rates (that sample goes through
+        :meth:`add`). Returns how many samples were taken."""
+        k, n = 0, len(dts)
+        while k < n:
+            T = self.T + np.cumsum(dts[k:])
+            closing = np.nonzero(T >= self.window)[0]
+            end = k + int(closing[0]) + 1 if len(closing) else n
+            state = self._accumulated(dts[k:end], w[k:end], f[k:end], T[:end - k])
+            if not len(closing):
+                self.B, self.f_head, self.f_tail, self.T = state
+                return n
+            verdict = self._verdict(*state)
+            if verdict is not None and verdict[0] and not self.al.units_suspect:
+                if end - 1 > k:                   # everything before the closing sample
+                    self.B, self.f_head, self.f_tail, self.T = self._accumulated(
+                        dts[k:end - 1], w[k:end - 1], f[k:end - 1], T[:end - 1 - k])
+                return end - 1
+            if verdict is not None:
+                self.last_mismatch_deg = verdict[1] / DEG
+            self._start()
+            k = end
+        return n
+
+    def _accumulated(self, dts, w, f, T):
+        """(B, f_head, f_tail, T) after samples with window times T (not stored)."""
+        B = self.B @ dcm_from_quat(total_rotation(dts, w))
         fd = f * dts[:, None]
-        self.f_head += fd[T <= 1.0].sum(0)
-        self.f_tail += fd[T > self.window - 1.0].sum(0)
-        self.T = float(T[-1])
+        return (B, self.f_head + fd[T <= 1.0].sum(0),
+                self.f_tail + fd[T > self.window - 1.0].sum(0), float(T[-1]))
+
+    def _verdict(self, B, f_head, f_tail, T):
+        """(flag the rates?, mismatch angle rad) of a closed window; None without data."""
+        if not (np.linalg.norm(f_head) > 0 and np.linalg.norm(f_tail) > 0):
+            return None
+        a = f_head / np.linalg.norm(f_head)
+        b = f_tail / np.linalg.norm(f_tail)
+        err = math.acos(max(-1.0, min(1.0, float((B.T @ a) @ b))))
+        return err > self.allow * T + self.TOL, err
 
     def add(self, dt, w, f):
         if not 0.0 < dt <= self.window:
@@ -1164,18 +1208,13 @@ class _UnitsMonitor:
         if self.T > self.window - 1.0:
             self.f_tail += f * dt
         if self.T >= self.window:
-            if not (np.linalg.norm(self.f_head) > 0 and np.linalg.norm(self.f_tail) > 0):
-                self._start()
-                return
-            a = self.f_head / np.linalg.norm(self.f_head)
-            b = self.f_tail / np.linalg.norm(self.f_tail)
-            pred = self.B.T @ a
-            err = math.acos(max(-1.0, min(1.0, float(pred @ b))))
-            bad = err > self.allow * self.T + self.TOL
-            if bad and not self.al.units_suspect:
-                self.al.units_suspect = True
-                self.al._restart_filter()
-            elif not bad:
-                self.al.units_suspect = False
-            self.last_mismatch_deg = err / DEG
+            verdict = self._verdict(self.B, self.f_head, self.f_tail, self.T)
+            if verdict is not None:
+                bad, err = verdict
+                if bad and not self.al.units_suspect:
+                    self.al.units_suspect = True
+                    self.al._restart_filter()
+                elif not bad:
+                    self.al.units_suspect = False
+                self.last_mismatch_deg = err / DEG
             self._start()

@@ -735,7 +735,7 @@ def select_truth_connections(reader, topic: str, path) -> list:
 
 #: Messages read and decoded at once (bounds the memory of the bulk decoding); also the
 #: samples per estimator call on the block path (fixed, whatever the bag's chunking).
-READ_CHUNK = 4096
+READ_CHUNK = 16384
 
 
 def imu_messages(reader, items: list, layout: str | None, path):

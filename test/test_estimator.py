@@ -245,6 +245,30 @@ def test_deg_per_s_rates_detected_rejected_and_recovered():
     assert np.all(np.abs(e) < 4 * al.std_enu_deg)
 
 
+def test_units_fault_and_recovery_same_in_blocks_and_one_by_one():
+    """Blocks span units-check windows (judged inside the block, cut before a window that
+    flags the rates): rad/s, then deg/s from mid-window, then rad/s again, fed as blocks
+    of 5000 and one sample at a time, give the same rejections, fault flag, attitude,
+    covariance and time to aligned."""
+    s = simulate(220, 100, 34.0, specs="navigation", sway="car", seed=12)
+    gyro = s.gyro.copy()
+    gyro[4550:9000] /= DEG
+    a, b = make_aligner(backtrack_time=30.0), make_aligner(backtrack_time=30.0)
+    faults_a, faults_b = [], []
+    for k in range(0, len(s.t), 5000):
+        a.update(s.t[k:k + 5000], gyro[k:k + 5000], s.accel[k:k + 5000])
+        faults_a.append(a.units_suspect)
+    for k in range(len(s.t)):
+        b.update(s.t[k], gyro[k], s.accel[k])
+        if k % 5000 == 4999 or k == len(s.t) - 1:
+            faults_b.append(b.units_suspect)
+    assert faults_a == faults_b and True in faults_a and not faults_a[-1]
+    assert a.rejected == b.rejected and a.rejected["rates_look_like_deg_per_s"] > 1000
+    assert a.samples_used == b.samples_used and a.time_to_aligned == b.time_to_aligned
+    assert np.abs(attitude_error(a.dcm, b.dcm)).max() < 1e-9
+    assert np.allclose(a.covariance, b.covariance, rtol=1e-8, atol=0)
+
+
 def test_rad_per_s_never_flagged_in_sway():
     """No false deg/s alarm on genuine car sway or ship sway in rad/s."""
     for sway in ("car", "ship"):
