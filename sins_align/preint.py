@@ -73,6 +73,23 @@ def _qexp_c(ax, ay, az):
     return (ax, ay, az, c)
 
 
+def _qmul_into(a, b, out, tmp):
+    """Hamilton product a b of quaternion components into the arrays ``out`` (x, y, z, w),
+    with one scratch array: no allocation (out must not alias a or b)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    ox, oy, oz, ow = out
+    mul = np.multiply
+    mul(aw, bx, out=ox); mul(ax, bw, out=tmp); ox += tmp                # noqa: E702
+    mul(ay, bz, out=tmp); ox += tmp; mul(az, by, out=tmp); ox -= tmp      # noqa: E702
+    mul(aw, by, out=oy); mul(ax, bz, out=tmp); oy -= tmp                # noqa: E702
+    mul(ay, bw, out=tmp); oy += tmp; mul(az, bx, out=tmp); oy += tmp      # noqa: E702
+    mul(aw, bz, out=oz); mul(ax, by, out=tmp); oz += tmp                # noqa: E702
+    mul(ay, bx, out=tmp); oz -= tmp; mul(az, bw, out=tmp); oz += tmp      # noqa: E702
+    mul(aw, bw, out=ow); mul(ax, bx, out=tmp); ow -= tmp                # noqa: E702
+    mul(ay, by, out=tmp); ow -= tmp; mul(az, bz, out=tmp); ow -= tmp      # noqa: E702
+
+
 def _qrot(q, v):
     """Rotate vectors v (..., 3) by quaternion components q: returns (..., 3)."""
     out = np.moveaxis(np.array(v, dtype=float), -1, 0)
@@ -132,21 +149,12 @@ def _scan(q, v=None):
     o = [np.empty_like(x[:, 0]) for _ in range(5)]
     tmp = o.pop()
     buf = [np.empty_like(x[:, 0]) for _ in range(3)] + [tmp]
-    mul = np.multiply
     for j in range(x.shape[1]):
         bx, by, bz, bw = x[:, j], y[:, j], z[:, j], w[:, j]
         if j:
-            ax, ay, az, aw = x[:, j - 1], y[:, j - 1], z[:, j - 1], w[:, j - 1]
-            ox, oy, oz, ow = o
-            mul(aw, bx, out=ox); mul(ax, bw, out=tmp); ox += tmp            # noqa: E702
-            mul(ay, bz, out=tmp); ox += tmp; mul(az, by, out=tmp); ox -= tmp  # noqa: E702
-            mul(aw, by, out=oy); mul(ax, bz, out=tmp); oy -= tmp            # noqa: E702
-            mul(ay, bw, out=tmp); oy += tmp; mul(az, bx, out=tmp); oy += tmp  # noqa: E702
-            mul(aw, bz, out=oz); mul(ax, by, out=tmp); oz += tmp            # noqa: E702
-            mul(ay, bx, out=tmp); oz -= tmp; mul(az, bw, out=tmp); oz += tmp  # noqa: E702
-            mul(aw, bw, out=ow); mul(ax, bx, out=tmp); ow -= tmp            # noqa: E702
-            mul(ay, by, out=tmp); ow -= tmp; mul(az, bz, out=tmp); ow -= tmp  # noqa: E702
-            bx[...], by[...], bz[...], bw[...] = ox, oy, oz, ow
+            _qmul_into((x[:, j - 1], y[:, j - 1], z[:, j - 1], w[:, j - 1]),
+                       (bx, by, bz, bw), o, tmp)
+            bx[...], by[...], bz[...], bw[...] = o
         if v is not None:
             _qrot_c((bx, by, bz, bw), tuple(c[:, j] for c in v), buf)
 
@@ -228,24 +236,14 @@ def _running_scan(rot, u):
     all m (quaternion components). Position by position: only step-sized scratch arrays."""
     q = None
     buf = [np.empty_like(rot[0, :, 0]) for _ in range(9)]
-    mul = np.multiply
     for j in range(rot.shape[2]):
         e = _qexp_c(*(rot[i, :, j] for i in range(3)))
         if q is None:
             q = tuple(np.array(c) for c in e)
         else:
-            ax, ay, az, aw = q
-            bx, by, bz, bw = e
-            ox, oy, oz, ow, tmp = buf[4:]
-            mul(aw, bx, out=ox); mul(ax, bw, out=tmp); ox += tmp            # noqa: E702
-            mul(ay, bz, out=tmp); ox += tmp; mul(az, by, out=tmp); ox -= tmp  # noqa: E702
-            mul(aw, by, out=oy); mul(ax, bz, out=tmp); oy -= tmp            # noqa: E702
-            mul(ay, bw, out=tmp); oy += tmp; mul(az, bx, out=tmp); oy += tmp  # noqa: E702
-            mul(aw, bz, out=oz); mul(ax, by, out=tmp); oz += tmp            # noqa: E702
-            mul(ay, bx, out=tmp); oz -= tmp; mul(az, bw, out=tmp); oz += tmp  # noqa: E702
-            mul(aw, bw, out=ow); mul(ax, bx, out=tmp); ow -= tmp            # noqa: E702
-            mul(ay, by, out=tmp); ow -= tmp; mul(az, bz, out=tmp); ow -= tmp  # noqa: E702
-            buf[4:8], q = list(q), (ox, oy, oz, ow)
+            out = tuple(buf[4:8])
+            _qmul_into(q, e, out, buf[8])
+            buf[4:8], q = list(q), out
         _qrot_c(q, tuple(u[i, :, j] for i in range(3)), buf[:3] + [buf[8]])
     return q
 
