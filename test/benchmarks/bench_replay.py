@@ -2,7 +2,7 @@
 
 Script, not a test: prints figures, never fails on a slow machine. Run::
 
-    .venv/bin/python test/benchmarks/bench_replay.py [--duration 300] [--repeat 3]
+    .venv/bin/python test/benchmarks/bench_replay.py [--duration 600] [--repeat 3]
 
 It simulates a static navigation-grade 100 Hz bag (``sins_align.simulate``, mcap + zstd, the
 Imu topic interleaved with the truth topic) into a temporary directory, then times
@@ -11,22 +11,23 @@ reading, decoding, the estimator and the JSON are all in), best of ``--repeat`` 
 prints each figure beside the target of 500,000 Imu messages/s:
 
 - end to end, summary only (the block path: MCAP parsed with numpy, bulk decoding, the
-  estimator fed blocks of thousands of samples), and the same forced onto the per-sample
-  path (before); with ``--csv`` (block path cut at the 10 Hz rows) and ``--output`` (the
-  node's per-sample path) for reference;
+  estimator fed blocks of thousands of samples), cold (as a fresh process: the gain
+  schedule cache cleared) and warm, and the same forced onto the per-sample path
+  (before); with ``--csv`` (block path cut at the 10 Hz rows) and ``--output`` (the node's
+  per-sample path) for reference;
 - decode only, bag on disk -> (sec, nanosec, gyro, accel) arrays of the Imu topic: rosbags'
   reader + its deserializer (before), rosbags' reader + the bulk decoder, and the numpy MCAP
   reader + bulk decoder (after); rosbags' reader alone (raw bytes) for scale;
 - the pieces of the end-to-end time: opening the bag with rosbags (metadata, types), and the
   estimator alone on the decoded arrays, fed in blocks and one sample at a time.
 
-Measured here (x86_64, 2 cores, CPython 3.11, numpy 2.4, best of 3). 300 s bag: summary
-only ~21,600 msg/s per-sample (before) -> ~320,000 block path (after); decode only ~88,000
-(rosbags) -> ~1,000,000 msg/s (numpy MCAP, 11 ms of it opening the bag with rosbags); the
-estimator alone in blocks ~495,000 samples/s, which alone keeps end to end below the
-target. 1200 s bag (--duration 1200): ~457,000 msg/s end to end, estimator ~686,000/s,
-decode only ~1,470,000 msg/s. --csv at 100 Hz ~26,000 msg/s (blocks of 10 samples between
-rows: the estimator's per-sample path), --output ~10,700 msg/s (per-sample by design).
+Measured here (x86_64, 2 cores, CPython 3.11, numpy 2.4, best of 3), 600 s bag (the
+default): summary only ~22,000 msg/s per-sample (before) -> ~450,000 block path cold (a
+fresh process: the gain schedule is built) and ~590,000 warm (schedule cached: the next
+bag of the same configuration); decode only ~79,000 (rosbags) -> ~1,230,000 msg/s (numpy
+MCAP, 12 ms of it opening the bag with rosbags); the estimator alone in blocks ~690,000
+samples/s cold. --csv at 100 Hz ~27,000 msg/s (blocks of 10 samples between rows: the
+estimator's per-sample path), --output ~10,000 msg/s (per-sample by design).
 """
 from __future__ import annotations
 
