@@ -261,12 +261,15 @@ class AlignmentFilter:
         return P + (S * self._bias_var) @ S.mT
 
     # ------------------------------------------------------------------ one sample
-    def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0):
-        """One accepted IMU sample for every run: w, f (N, 3); dt, gap shared (s)."""
+    def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0, dR=None):
+        """One accepted IMU sample for every run: w, f (N, 3); dt, gap shared (s).
+        ``dR``: exp(w dt) (N, 3, 3), when the caller has it already."""
+        if dR is None:
+            dR = so3_exp(w * dt)
         if self._buf is not None and not self.backtracked:
             self._buf.append(dt, w, f, gap)
-            self._B = self._B @ so3_exp(w * dt)
-        self._advance(dt, w, f, gap)
+            self._B = self._B @ dR
+        self._advance(dt, w, f, gap, dR)
         if self._backtrack_due(dt):
             self.backtrack()
 
@@ -523,30 +526,32 @@ class AlignmentFilter:
         self._node = None
         self.S = Phi @ self.S + self.Gamma * dt
 
-    def _advance(self, dt, w, f, gap):
-        """Mechanization (paper eq. 1), covariance propagation, and an update when due."""
+    def _advance(self, dt, w, f, gap, dR=None):
+        """Mechanization (paper eq. 1), covariance propagation, and an update when due.
+        ``dR``: exp(w dt), when the caller has it already."""
         if gap > 0.0:
             # bridged as static: the state stays, the errors grow over the gap
             self._propagate(self._F(-self.g_n + 0.0 * self.v), gap)
-        self.C = self._earth_step(dt) @ self.C @ so3_exp(w * dt)
+        self.C = self._earth_step(dt) @ self.C @ (so3_exp(w * dt) if dR is None else dR)
         fn = (self.C @ f[..., None])[..., 0]
         self.v = self.v + (fn + self.g_n) * dt
         self.t_int += dt
         F = self._F(fn)
         self._propagate(F, dt)
-        H = measurement_matrix(self.config.model, self.v)
         if not self.fine:
             # coarse pass: the paper's instantaneous zero-velocity update, at every sample or
             # every coarse_update_period; R scaled so the noise density does not depend on it
             period = self.config.coarse_update_period
             self.t_acc += dt
             if self.t_acc >= period - 0.5 * dt:
+                H = measurement_matrix(self.config.model, self.v)
                 self._correct(self.v, H, scale=0.01 / self.t_acc)
                 self.t_acc = 0.0
             return
         self.v_sum += self.v * dt
         self.t_acc += dt
         if self.t_acc >= self.fine_period - 0.5 * dt:
+            H = measurement_matrix(self.config.model, self.v)
             Ha = averaged_measurement_matrix(H, F, self.t_acc)
             self._correct(self.v_sum / self.t_acc, Ha)
             self.v_sum = np.zeros((self.n, 3))
@@ -1004,8 +1009,9 @@ class Aligner:
             return self._reject("gravity_removed")
         if abs(fn - self.g) > c.specific_force_tolerance * self.g:
             return self._reject("specific_force_out_of_range")
+        dR = None
         if self._units is not None:
-            self._units.add(raw_dt, w, f)
+            dR = self._units.add(raw_dt, w, f)
             if self.units_suspect:
                 self.t_last = t
                 return self._reject("rates_look_like_deg_per_s")
@@ -1019,7 +1025,7 @@ class Aligner:
         self.samples_used += 1
         fl = self.filter
         before = (fl.updates, fl.stage, id(fl))
-        fl.step(dt, w[None], f[None], gap)
+        fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None)
         if (fl.updates, fl.stage, id(fl)) != before or self._aligned:
             # the published std only shrinks at an update (or the backtrack); between
             # updates the flag cannot newly turn true, so the check is skipped there
@@ -1199,9 +1205,11 @@ class _UnitsMonitor:
         return err > self.allow * T + self.TOL, err
 
     def add(self, dt, w, f):
+        """One sample; returns exp(w dt), which the filter can reuse (None if skipped)."""
         if not 0.0 < dt <= self.window:
-            return
-        self.B = self.B @ so3_exp(w * dt)
+            return None
+        dR = so3_exp(w * dt)
+        self.B = self.B @ dR
         self.T += dt
         if self.T <= 1.0:
             self.f_head += f * dt
@@ -1218,3 +1226,4 @@ class _UnitsMonitor:
                     self.al.units_suspect = False
                 self.last_mismatch_deg = err / DEG
             self._start()
+        return dR
