@@ -56,7 +56,7 @@ FAST_MAX_BLOCK = 65536
 
 #: gain schedules of the constant model, shared between filter instances (see _cov_block)
 _SCHEDULE_CACHE: dict = {}
-_SCHEDULE_CACHE_MAX = 100000        # cached steps (a 10 min bag needs about 1200)
+_SCHEDULE_CACHE_MAX = 20000         # cached steps, about 1 kB each (a 10 min bag: 1200)
 _SCHEDULE_SIZE = 0
 #: samples x runs pre-integrated at once by the fast path (bounds its temporaries)
 _PIECE_SAMPLE_RUNS = 1 << 18
