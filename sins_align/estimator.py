@@ -442,9 +442,10 @@ class AlignmentFilter:
         batch) reuses the whole gain schedule, and a step costs one dictionary look-up.
         """
         node = self._node
-        if node is None and np.ndim(dt) == 0:
+        uniform = not isinstance(dt, np.ndarray)
+        if node is None and uniform:
             node = self._schedule_root()
-        if node is not None and np.ndim(dt) == 0:
+        if node is not None and uniform:
             key = (m, dt, scale, None if H is None else H.tobytes())
             hit = node.get(key)
             if hit is not None:
