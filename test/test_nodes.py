@@ -254,6 +254,21 @@ def test_runtime_parameter_changes_are_checked_and_applied_live(pair, probe):
     assert int(after["samples_used"]) > int(before["samples_used"])
 
 
+def test_euler_rate_change_restarts_the_euler_timer(pair, probe):
+    """euler_rate set at runtime replaces the euler timer: 2 Hz, then 10 Hz again."""
+    fqn = f"{NS}/{NODE}"
+    try:
+        (res,) = probe.set_parameters(fqn, euler_rate=2.0)
+        assert res.successful, res.reason
+        _, _, (slow,) = _window(probe, 3.0, extra=[(Vector3Stamped, "alignment/euler_deg")])
+    finally:
+        (res,) = probe.set_parameters(fqn, euler_rate=10.0)
+        assert res.successful, res.reason
+    _, _, (fast,) = _window(probe, 3.0, extra=[(Vector3Stamped, "alignment/euler_deg")])
+    assert 3 <= len(slow) <= 9, f"{len(slow)} euler messages in 3 s at 2 Hz"
+    assert 15 <= len(fast) <= 45, f"{len(fast)} euler messages in 3 s at 10 Hz"
+
+
 def test_reset_service_restarts_the_alignment(pair, probe):
     """alignment/reset: aligned goes false, diagnostics say aligning, then aligned again."""
     wait_until(lambda: pair.aligned.msgs and pair.aligned.msgs[-1].data, ALIGN_TIMEOUT,
