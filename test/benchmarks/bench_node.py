@@ -5,8 +5,10 @@ For each IMU rate (100, 400, 1000, 2000 Hz) a publisher process sends ~10 s of s
 sensor_msgs/Imu at that rate (wall clock) to a fresh ``python -m sins_align.align_node``;
 this script counts the ``imu/data`` messages that come back and reads the node's CPU time
 from ``/proc/<pid>/stat`` (utime + stime). A rate is *sustained* when every input came back.
-Columns: node CPU as % of one core and per input message (µs), and the whole machine's busy
-CPU over the trial (% of one core, 200 = both cores): publisher, node and this script's
+Columns: ``used`` the samples the node's diagnostics count as used, plus the first one (the
+time anchor, republished too): below ``sent`` the loss was on the way in, below it ``out``
+on the way out; node CPU as % of one core and per input message (µs); the whole machine's
+busy CPU over the trial (% of one core, 200 = both cores): publisher, node and this script's
 counting subscriber share the machine, and other load there shows up in that column.
 
 Two phases of the filter are measured:
@@ -168,7 +170,6 @@ def trial(rate: float, duration: float, backtrack: float, env: dict) -> dict:
         d = got["diag"] or {}
         return {"rate": rate, "sent": info["sent"], "out": got["out"],
                 "used": int(d.get("samples_used", 0)),
-                "gaps": int(d.get("event_gap", 0)),
                 "pub_rate": info["sent"] / info["wall"],
                 "lag": max(0.0, (t1 - t0) - info["wall"]),
                 "cpu": 100.0 * cpu / (t1 - t0), "us_per_msg": 1e6 * cpu / info["sent"],
@@ -200,7 +201,7 @@ def main() -> int:
     os.environ.update(env)
     print(f"align_node throughput, {a.duration:g} s per trial, {os.cpu_count()} CPUs, "
           f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}")
-    print(f"{'phase':<7}{'rate Hz':>8}{'sent':>7}{'out':>7}{'lost':>6}{'pub Hz':>8}"
+    print(f"{'phase':<7}{'rate Hz':>8}{'sent':>7}{'used':>7}{'out':>7}{'lost':>6}{'pub Hz':>8}"
           f"{'lag s':>7}{'CPU %':>7}{'µs/msg':>7}{'box %':>7}  result")
     best = {}
     for phase, backtrack in (("coarse", 60.0), ("fine", 5.0)):
@@ -212,7 +213,7 @@ def main() -> int:
                 best[phase] = max(best.get(phase, 0), rate)
             verdict = "sustained" if ok else (
                 f"NOT sustained ({lost} lost)" if lost else "NOT sustained (falls behind)")
-            print(f"{phase:<7}{rate:>8g}{r['sent']:>7}{r['out']:>7}{lost:>6}"
+            print(f"{phase:<7}{rate:>8g}{r['sent']:>7}{r['used'] + 1:>7}{r['out']:>7}{lost:>6}"
                   f"{r['pub_rate']:>8.0f}{r['lag']:>7.1f}{r['cpu']:>7.0f}{r['us_per_msg']:>7.0f}"
                   f"{r['box']:>7.0f}  {verdict}",
                   flush=True)
