@@ -517,6 +517,23 @@ class _Published(list):
         self.append(msg)
 
 
+def test_queue_size_sets_the_imu_history_depth_in_and_out(probe):
+    """queue_size is the history depth of the imu/data_raw subscription (best effort) and of
+    the imu/data publisher (reliable)."""
+    from rclpy.parameter import Parameter
+    from rclpy.qos import ReliabilityPolicy
+
+    node = align_node._make_node_class()(
+        context=probe.context, namespace=f"/depth_{RUN}",
+        parameter_overrides=[Parameter("latitude", value=34.0), Parameter("queue_size", value=321)])
+    try:
+        assert node.sub.qos_profile.depth == node.pub_imu.qos_profile.depth == 321
+        assert node.sub.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert node.pub_imu.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    finally:
+        node.destroy_node()
+
+
 def test_raw_path_publishes_what_the_message_path_publishes(probe):
     """The node reads serialised imu/data_raw (raw subscription) and republishes the bytes with
     the orientation fields overwritten; its message path (rclpy deserialisation, message
