@@ -34,9 +34,14 @@ never returns a value that rosbags would not return for the same bytes (test/tes
 
 Whether a bag's ``sensor_msgs/msg/Imu`` has this layout at all (its message definition
 could differ) is checked once per reader with :func:`reader_imu_layout`.
+
+One message at a time (align_node's raw subscription), :class:`ImuLayout` recognises the
+ROS 2 layout of one frame_id in a message (CDR_LE, NUL-terminated string, nothing after the
+floats), reads the sample from it and writes a copy with the orientation fields replaced.
 """
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence
 
@@ -459,6 +464,68 @@ def _strings(u8: np.ndarray, ok: np.ndarray, nbytes: np.ndarray, idx, frame_id: 
             ok[r] = False
         else:
             frame_id[r if idx is None else int(idx[r])] = s
+
+
+# ----------------------------------------------------------------------------- one message
+_STAMP = struct.Struct("<iI")
+_VEC3 = struct.Struct("<3d")
+_U4 = struct.Struct("<I")
+
+
+class ImuLayout:
+    """The ROS 2 encoding of ``sensor_msgs/Imu`` messages of one ``frame_id`` (CDR_LE).
+
+    A message has this layout when it starts with CDR_LE, is ``size`` bytes long and holds
+    ``head`` (string length, UTF-8 frame_id, NUL) at byte 12; the padding bytes after the
+    NUL are not looked at (rclpy leaves whatever was in its buffer there). Every stamp and
+    float64 bit pattern encodes as itself, so :meth:`read` and :meth:`with_orientation`
+    work on the bytes directly.
+    """
+
+    __slots__ = ("frame_id", "size", "head", "floats", "_gyro", "_accel", "_prefix")
+
+    def __init__(self, frame_id: str):
+        name = frame_id.encode()
+        if b"\0" in name:
+            raise ValueError("frame_id contains NUL")
+        self.frame_id = frame_id
+        self.size = imu_nbytes(len(name))
+        self.floats = self.size - FLOATS_NBYTES
+        self.head = _U4.pack(len(name) + 1) + name + b"\0"
+        self._prefix = self.head + bytes(self.floats - 12 - len(self.head))   # zero padding
+        self._gyro = self.floats + 8 * GYRO.start
+        self._accel = self.floats + 8 * ACCEL.start
+
+    @classmethod
+    def of(cls, raw: bytes) -> ImuLayout | None:
+        """The layout of ``raw``, or None when it has none (decode it another way)."""
+        if len(raw) < 16 or not raw.startswith(CDR_LE):
+            return None
+        n = _U4.unpack_from(raw, 12)[0]
+        if n < 1 or len(raw) != imu_nbytes(n - 1):
+            return None
+        try:
+            layout = cls(raw[16:15 + n].decode())
+        except ValueError:                      # not UTF-8 (UnicodeDecodeError), or a NUL
+            return None
+        return layout if layout.matches(raw) else None
+
+    def matches(self, raw: bytes) -> bool:
+        return len(raw) == self.size and raw.startswith(self.head, 12) and raw.startswith(CDR_LE)
+
+    def read(self, raw: bytes) -> tuple[int, int, tuple, tuple]:
+        """(stamp sec, stamp nanosec, angular_velocity xyz, linear_acceleration xyz)."""
+        sec, nanosec = _STAMP.unpack_from(raw, 4)
+        gyro, accel = _VEC3.unpack_from(raw, self._gyro), _VEC3.unpack_from(raw, self._accel)
+        return sec, nanosec, gyro, accel
+
+    def with_orientation(self, raw: bytes, values) -> bytes:
+        """``raw`` with orientation and orientation_covariance replaced by ``values`` (13
+        numbers: x, y, z, w, then the 9 covariances, row-major) and zero padding."""
+        v = np.asarray(values, "<f8")
+        if v.shape != (ORIENTATION_COV.stop,):
+            raise ValueError(f"expected {ORIENTATION_COV.stop} values, got shape {v.shape}")
+        return raw[:12] + self._prefix + v.tobytes() + raw[self.floats + v.nbytes:]
 
 
 # ----------------------------------------------------------------------------- readers

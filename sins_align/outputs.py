@@ -43,11 +43,15 @@ class ImuOutput:
     orientation_covariance: tuple[float, ...]   # 9 values, row-major
 
 
+def imu_output_values(al: Aligner) -> np.ndarray:
+    """(13,) float64: the orientation [x, y, z, w], then its covariance (9, row-major)."""
+    return np.concatenate((al.quaternion, al.covariance.reshape(-1)))
+
+
 def imu_output(al: Aligner) -> ImuOutput:
     """Orientation and its covariance for the output ``sensor_msgs/Imu``."""
-    q = al.quaternion
-    cov = al.covariance
-    return ImuOutput(tuple(float(x) for x in q), tuple(float(x) for x in cov.reshape(-1)))
+    v = imu_output_values(al).tolist()
+    return ImuOutput(tuple(v[:4]), tuple(v[4:]))
 
 
 def euler_deg(al: Aligner) -> tuple[float, float, float]:

@@ -10,6 +10,11 @@ What is proved here:
   to exactly what rosbags gives or raise (never a silently different value);
 - a bag's Imu layout is recognised for rosbag2 and ROS 1 bags and refused for a bag whose
   Imu definition is not the standard one;
+- one message at a time (align_node's raw subscription), :class:`cdr.ImuLayout` reads the
+  stamp, gyro and accel rclpy decodes, and its rewritten message (new orientation fields)
+  is what rclpy decodes as that message and rclpy's own encoding of it byte for byte but
+  for the padding after the frame_id (zero here, leftover buffer bytes in rclpy); anything
+  it cannot rewrite in place (big-endian, options, trailing bytes, a bad string) is refused;
 - the replay, which now decodes in chunks, feeds the session exactly the messages rosbags
   gives, across chunk boundaries, with a truth topic interleaved, frame_ids changing and
   big-endian messages mixed in; a corrupt Imu message is a one-line error naming its time.
@@ -22,8 +27,8 @@ import numpy as np
 import pytest
 
 from sins_align import cdr, replay
-from sins_align.cdr import (CDR_BE, CDR_LE, ImuDecodeError, decode_imu_batch, imu_nbytes,
-                            reader_imu_layout)
+from sins_align.cdr import (CDR_BE, CDR_LE, ImuDecodeError, ImuLayout, decode_imu_batch,
+                            imu_nbytes, reader_imu_layout)
 
 IMU = "sensor_msgs/msg/Imu"
 FRAME_IDS = ["", "a", "ab", "abc", "imu", "imu_link", "base_link/imu0", "x" * 11, "y" * 12,
@@ -282,6 +287,89 @@ def test_unknown_layout_is_refused():
         decode_imu_batch([], "ros3")
     with pytest.raises(ValueError, match="unknown layout"):
         imu_nbytes(3, "xml")
+
+
+# ------------------------------------------------------------------------------ one message
+def bits(values) -> tuple:
+    return tuple(np.asarray(values, np.float64).view(np.uint64).tolist())
+
+
+def with_orientation(ts, msg, values):
+    """A rosbags Imu with orientation and its covariance set from 13 values."""
+    from dataclasses import replace
+
+    return replace(msg, orientation=ts.types["geometry_msgs/msg/Quaternion"](
+        *map(float, values[:4])), orientation_covariance=np.array(values[4:], np.float64))
+
+
+def test_imu_layout_reads_and_rewrites_as_rclpy_decodes_and_encodes(ts2):
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import Imu
+
+    rng = np.random.default_rng(10)
+    for m in random_imus(ts2, rng, 1000):
+        raw = bytes(ts2.serialize_cdr(m, IMU))
+        layout = ImuLayout.of(raw)
+        assert layout is not None and layout.matches(raw)
+        ref = deserialize_message(raw, Imu)                 # the message path
+        assert layout.frame_id == ref.header.frame_id == m.header.frame_id
+        sec, nanosec, w, a = layout.read(raw)
+        assert (sec, nanosec) == (ref.header.stamp.sec, ref.header.stamp.nanosec)
+        g, f = ref.angular_velocity, ref.linear_acceleration
+        assert bits(w) == bits([g.x, g.y, g.z]) and bits(a) == bits([f.x, f.y, f.z])
+
+        values = random_floats(rng, 13)
+        out = layout.with_orientation(raw, values)
+        q = ref.orientation
+        q.x, q.y, q.z, q.w = map(float, values[:4])
+        ref.orientation_covariance = values[4:]
+        assert as_row(deserialize_message(out, Imu)) == as_row(ref)
+        # rclpy's bytes for the same message, but for the padding after the frame_id
+        enc = serialize_message(ref)
+        pad = slice(16 + len(layout.frame_id.encode()) + 1, layout.floats)
+        assert len(out) == len(enc) == len(raw) and out[pad] == bytes(len(out[pad]))
+        assert out[:pad.start] == enc[:pad.start] and out[pad.stop:] == enc[pad.stop:]
+        # rosbags zero-pads: its encoding is the same bytes
+        assert out == bytes(ts2.serialize_cdr(with_orientation(ts2, m, values), IMU))
+
+
+def test_imu_layout_ignores_padding_and_refuses_what_it_cannot_rewrite(ts2):
+    rng = np.random.default_rng(11)
+    m = random_imus(ts2, rng, 1, frame_ids=["imu_link"])[0]
+    raw = bytes(ts2.serialize_cdr(m, IMU))
+    layout = ImuLayout.of(raw)
+    assert layout.size == len(raw) == imu_nbytes(8) and layout.floats == 28
+    # leftover bytes in the padding (as rclpy leaves them) are not content
+    junk = raw[:25] + b"\xaa" * 3 + raw[28:]
+    assert ImuLayout.of(junk).frame_id == "imu_link" and layout.matches(junk)
+    assert layout.read(junk) == layout.read(raw)
+    values = np.arange(13.0)
+    assert layout.with_orientation(junk, values) == layout.with_orientation(raw, values)
+
+    L = 9
+    refused = {
+        "big-endian": bytes(ts2.serialize_cdr(m, IMU, little_endian=False)),
+        "options": raw[:2] + b"\x00\x03" + raw[4:],
+        "trailing bytes": raw + b"\x00" * 8,
+        "truncated": raw[:-1],
+        "empty": b"",
+        "encapsulation only": raw[:4],
+        "NUL replaced": raw[:15 + L] + b"x" + raw[16 + L:],
+        "length in the padding": raw[:12] + (L + 1).to_bytes(4, "little") + raw[16:],
+        "length zero": raw[:12] + (0).to_bytes(4, "little") + raw[16:],
+        "length huge": raw[:12] + (2**32 - 1).to_bytes(4, "little") + raw[16:],
+        "not UTF-8": raw[:16] + b"\xff" + raw[17:],
+        "NUL inside": raw[:17] + b"\x00" + raw[18:],      # rclpy would cut the frame_id
+    }
+    for what, bad in refused.items():
+        assert ImuLayout.of(bad) is None, what
+        assert not layout.matches(bad), what
+    assert not layout.matches(raw[:16] + b"imu_lenk" + raw[24:])   # same size, other name
+    assert ImuLayout("imu_lin").size == layout.size and not ImuLayout("imu_lin").matches(raw)
+    with pytest.raises(ValueError, match="NUL"):
+        ImuLayout("a\0b")
+    with pytest.raises(ValueError, match="13 values"):
+        layout.with_orientation(raw, np.zeros(12))
 
 
 # ------------------------------------------------------------------------------ bags

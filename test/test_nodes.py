@@ -254,6 +254,21 @@ def test_runtime_parameter_changes_are_checked_and_applied_live(pair, probe):
     assert int(after["samples_used"]) > int(before["samples_used"])
 
 
+def test_euler_rate_change_restarts_the_euler_timer(pair, probe):
+    """euler_rate set at runtime replaces the euler timer: 2 Hz, then 10 Hz again."""
+    fqn = f"{NS}/{NODE}"
+    try:
+        (res,) = probe.set_parameters(fqn, euler_rate=2.0)
+        assert res.successful, res.reason
+        _, _, (slow,) = _window(probe, 3.0, extra=[(Vector3Stamped, "alignment/euler_deg")])
+    finally:
+        (res,) = probe.set_parameters(fqn, euler_rate=10.0)
+        assert res.successful, res.reason
+    _, _, (fast,) = _window(probe, 3.0, extra=[(Vector3Stamped, "alignment/euler_deg")])
+    assert 3 <= len(slow) <= 9, f"{len(slow)} euler messages in 3 s at 2 Hz"
+    assert 15 <= len(fast) <= 45, f"{len(fast)} euler messages in 3 s at 10 Hz"
+
+
 def test_reset_service_restarts_the_alignment(pair, probe):
     """alignment/reset: aligned goes false, diagnostics say aligning, then aligned again."""
     wait_until(lambda: pair.aligned.msgs and pair.aligned.msgs[-1].data, ALIGN_TIMEOUT,
@@ -493,6 +508,109 @@ def test_ros_time_jumping_back_restarts_the_alignment(probe):
         probe.node.destroy_publisher(pub)
         probe.executor.remove_node(node)
         node.destroy_node()
+
+
+class _Published(list):
+    """Stands in for a publisher: keeps what is published."""
+
+    def publish(self, msg):
+        self.append(msg)
+
+
+def test_queue_size_sets_the_imu_history_depth_in_and_out(probe):
+    """queue_size is the history depth of the imu/data_raw subscription (best effort) and of
+    the imu/data publisher (reliable)."""
+    from rclpy.parameter import Parameter
+    from rclpy.qos import ReliabilityPolicy
+
+    node = align_node._make_node_class()(
+        context=probe.context, namespace=f"/depth_{RUN}",
+        parameter_overrides=[Parameter("latitude", value=34.0), Parameter("queue_size", value=321)])
+    try:
+        assert node.sub.qos_profile.depth == node.pub_imu.qos_profile.depth == 321
+        assert node.sub.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert node.pub_imu.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    finally:
+        node.destroy_node()
+
+
+def test_raw_path_publishes_what_the_message_path_publishes(probe):
+    """The node reads serialised imu/data_raw (raw subscription) and republishes the bytes with
+    the orientation fields overwritten; its message path (rclpy deserialisation, message
+    objects) is the reference. Two in-process nodes get the same serialised stream (good
+    samples, each kind of bad sample, a frame_id change, big-endian messages, which the raw
+    path hands to the message path, and stamps jumping back): both publish the same imu/data
+    messages, the raw path's bytes being rclpy's encoding of the reference message but for the
+    padding after the frame_id; the same aligned flags; the same counters at the end."""
+    from rclpy.parameter import Parameter
+    from rclpy.serialization import deserialize_message, serialize_message
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    nodes = []
+    for path in ("raw", "msg"):
+        node = align_node._make_node_class()(
+            context=probe.context, namespace=f"/{path}_path_{RUN}",
+            parameter_overrides=[Parameter("latitude", value=34.0),
+                                 Parameter("rate", value=RATE),
+                                 Parameter("backtrack_time", value=5.0)])
+        node.pub_imu, node.pub_aligned = _Published(), _Published()
+        nodes.append(node)
+    raw_node, msg_node = nodes
+
+    def feed(raws):
+        for r in raws:
+            raw_node._on_raw(r)
+            msg_node._on_imu(deserialize_message(r, Imu))
+
+    def big_endian(r):
+        return bytes(ts.serialize_cdr(ts.deserialize_cdr(r, "sensor_msgs/msg/Imu"),
+                                      "sensor_msgs/msg/Imu", little_endian=False))
+
+    a = simulate(30.0, rate=RATE, seed=16)
+    raws = []
+    for k in range(len(a.t)):
+        t, w, f = T0 + a.t[k], a.gyro[k], a.accel[k]
+        frame = "imu_link" if k < 900 else "imu_b"
+        r = serialize_message(_imu(t, w, f, frame))
+        raws.append(big_endian(r) if k % 37 == 5 else r)
+        slot = k % 100
+        if 0 < k < 600 and slot in (3, 7, 11, 15):
+            bad = {3: (t + 0.01, [math.nan, 0.0, 0.0], f), 7: (t, w, f), 11: (t - 0.5, w, f),
+                   15: (t + 0.01, w, f - np.array([0.0, 0.0, 9.79]))}[slot]
+            raws.append(serialize_message(_imu(*bad, frame)))
+    try:
+        feed(raws)
+        assert raw_node.aligner.filter.backtracked and msg_node.aligner.filter.backtracked
+        assert raw_node.aligner.rejected == msg_node.aligner.rejected
+        assert set(raw_node.aligner.rejected) >= {
+            "nonfinite", "duplicate_stamp", "stamp_backwards", "gravity_removed"}
+        back = simulate(0.2, rate=RATE, seed=17)
+        feed([serialize_message(_imu(T0 + back.t[k], back.gyro[k], back.accel[k], "imu_b"))
+              for k in range(len(back.t))])
+
+        got, ref = raw_node.pub_imu, msg_node.pub_imu
+        assert len(got) == len(ref) > 1400
+        fast = 0
+        for out, m in zip(got, ref):
+            if isinstance(out, bytes):
+                fast += 1
+                enc = serialize_message(m)
+                pad = slice(17 + len(m.header.frame_id.encode()), len(enc) - 8 * 37)
+                assert len(out) == len(enc)
+                assert out[:pad.start] == enc[:pad.start] and out[pad.stop:] == enc[pad.stop:]
+                out = deserialize_message(out, Imu)
+            assert out == m
+        assert 0 < fast < len(got), "both paths must have been taken"
+        assert ([m.data for m in raw_node.pub_aligned]
+                == [m.data for m in msg_node.pub_aligned])
+        for name in ("resets", "last_reset_reason", "last_header", "_rx_count"):
+            assert getattr(raw_node, name) == getattr(msg_node, name), name
+        assert raw_node.resets == 1
+        assert raw_node.aligner.samples_used == msg_node.aligner.samples_used > 0
+    finally:
+        for node in nodes:
+            node.destroy_node()
 
 
 def test_imu_sim_node_publishes_rep145_samples_and_truth(probe, tmp_path):

@@ -5,6 +5,11 @@ For each IMU rate (100, 400, 1000, 2000 Hz) a publisher process sends ~10 s of s
 sensor_msgs/Imu at that rate (wall clock) to a fresh ``python -m sins_align.align_node``;
 this script counts the ``imu/data`` messages that come back and reads the node's CPU time
 from ``/proc/<pid>/stat`` (utime + stime). A rate is *sustained* when every input came back.
+Columns: ``used`` the samples the node's diagnostics count as used, plus the first one (the
+time anchor, republished too): below ``sent`` the loss was on the way in, below it ``out``
+on the way out; node CPU as % of one core and per input message (µs); the whole machine's
+busy CPU over the trial (% of one core, 200 = both cores): publisher, node and this script's
+counting subscriber share the machine, and other load there shows up in that column.
 
 Two phases of the filter are measured:
 - coarse: backtrack_time 60 s, so the whole run is the coarse pass (a Kalman update at
@@ -30,6 +35,13 @@ from pathlib import Path
 
 NS = "/bench"
 CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def machine_busy_seconds() -> float:
+    """CPU seconds the whole machine spent outside idle and iowait (first line of /proc/stat:
+    user nice system idle iowait irq softirq steal, then guest times already in user)."""
+    ticks = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9]]
+    return (sum(ticks) - ticks[3] - ticks[4]) / CLK_TCK
 
 
 def cpu_seconds(pid: int) -> float:
@@ -136,7 +148,7 @@ def trial(rate: float, duration: float, backtrack: float, env: dict) -> dict:
             spin_for(0.1)
         assert json.loads(pub.stdout.readline())["ready"]
         spin_for(1.0)
-        cpu0, t0 = cpu_seconds(node.pid), time.monotonic()
+        cpu0, box0, t0 = cpu_seconds(node.pid), machine_busy_seconds(), time.monotonic()
         pub.stdin.write("go\n")
         pub.stdin.flush()
         # spin while the publisher runs (it prints its summary when done)
@@ -153,14 +165,15 @@ def trial(rate: float, duration: float, backtrack: float, env: dict) -> dict:
             still = still + 0.2 if got["out"] == n else 0.0
         t1 = time.monotonic() - still
         cpu = cpu_seconds(node.pid) - cpu0
+        box = (machine_busy_seconds() - box0) / (time.monotonic() - t0)
         spin_for(1.2)                            # one more diagnostics message
         d = got["diag"] or {}
         return {"rate": rate, "sent": info["sent"], "out": got["out"],
                 "used": int(d.get("samples_used", 0)),
-                "gaps": int(d.get("event_gap", 0)),
                 "pub_rate": info["sent"] / info["wall"],
                 "lag": max(0.0, (t1 - t0) - info["wall"]),
-                "cpu": 100.0 * cpu / (t1 - t0), "stage": d.get("stage", "?")}
+                "cpu": 100.0 * cpu / (t1 - t0), "us_per_msg": 1e6 * cpu / info["sent"],
+                "box": 100.0 * box, "stage": d.get("stage", "?")}
     finally:
         for p in (pub, node):
             if p.poll() is None:
@@ -188,8 +201,8 @@ def main() -> int:
     os.environ.update(env)
     print(f"align_node throughput, {a.duration:g} s per trial, {os.cpu_count()} CPUs, "
           f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}")
-    print(f"{'phase':<7}{'rate Hz':>8}{'sent':>7}{'out':>7}{'lost':>6}{'pub Hz':>8}"
-          f"{'lag s':>7}{'CPU %':>7}  result")
+    print(f"{'phase':<7}{'rate Hz':>8}{'sent':>7}{'used':>7}{'out':>7}{'lost':>6}{'pub Hz':>8}"
+          f"{'lag s':>7}{'CPU %':>7}{'µs/msg':>7}{'box %':>7}  result")
     best = {}
     for phase, backtrack in (("coarse", 60.0), ("fine", 5.0)):
         for rate in a.rates:
@@ -200,8 +213,9 @@ def main() -> int:
                 best[phase] = max(best.get(phase, 0), rate)
             verdict = "sustained" if ok else (
                 f"NOT sustained ({lost} lost)" if lost else "NOT sustained (falls behind)")
-            print(f"{phase:<7}{rate:>8g}{r['sent']:>7}{r['out']:>7}{lost:>6}"
-                  f"{r['pub_rate']:>8.0f}{r['lag']:>7.1f}{r['cpu']:>7.0f}  {verdict}",
+            print(f"{phase:<7}{rate:>8g}{r['sent']:>7}{r['used'] + 1:>7}{r['out']:>7}{lost:>6}"
+                  f"{r['pub_rate']:>8.0f}{r['lag']:>7.1f}{r['cpu']:>7.0f}{r['us_per_msg']:>7.0f}"
+                  f"{r['box']:>7.0f}  {verdict}",
                   flush=True)
     for phase in ("coarse", "fine"):
         print(f"highest sustained rate, {phase} pass: "
