@@ -666,17 +666,13 @@ class AlignmentFilter:
             return hit
         Gd = self.Gamma * T
         prev = None
-        PhiT, HT, R = Phi.T, H.T, self.R
+        PhiT, R = Phi.T, self.R
         if P.shape[0] == S.shape[0] == R.shape[0] == 1:      # one covariance: 2-D arrays
             P, S, R = P[0], S[0], R[0]
         for i in range(int(horizon / T)):
-            # the covariance recursion of the fine pass, optimal-gain form P - K H P
-            P = Phi @ P @ PhiT + Qd
+            P = Phi @ P @ PhiT + Qd                           # the fine pass's recursion
             S = Phi @ S + Gd
-            PHt = P @ HT
-            K = PHt @ inv3(H @ PHt + R)
-            P = P - K @ PHt.mT
-            P = 0.5 * (P + P.mT)
+            P, K, _ = joseph_update(P, H, R)
             S = S - K @ (H @ S)
             if i % 50 == 49:                      # stop once the attitude std has settled
                 d = np.diagonal(self._with_bias(P, S), axis1=-2, axis2=-1)[..., :3]
