@@ -441,18 +441,16 @@ class AlignmentFilter:
         cache: a second run of the same configuration (the next bag, the next Monte Carlo
         batch) reuses the whole gain schedule, and a step costs one dictionary look-up.
         """
-        node = self._node
-        uniform = not isinstance(dt, np.ndarray)
-        if node is None and uniform:
-            node = self._schedule_root()
-        if node is not None and uniform:
+        node = None
+        if not isinstance(dt, np.ndarray):           # uniform intervals: cacheable
+            node = self._node if self._node is not None else self._schedule_root()
+        self._node = None                            # P and S are about to move on
+        if node is not None:
             key = (m, dt, scale, None if H is None else H.tobytes())
             hit = node.get(key)
             if hit is not None:
                 self.P, self.S, K, Sinv, self._node = hit
                 return K, Sinv
-        else:
-            node = None
         Phi, Qd, Gm = jumps() if jumps is not None else self._disc_m(m, dt)
         self.P = Phi @ self.P @ Phi.T + Qd
         self.S = Phi @ self.S + Gm

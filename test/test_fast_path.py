@@ -84,3 +84,21 @@ def test_fast_equals_reference_with_jittered_intervals(coarse):
     for k in range(0, len(s.t), 2500):
         fast.run_fast(dts[k:k + 2500], s.gyro[k:k + 2500], s.accel[k:k + 2500])
     assert_same(ref, fast)
+
+
+def test_schedule_cache_with_uniform_and_jittered_blocks_mixed():
+    """Uniform blocks (gain schedule cached) around a jittered block that ends inside an
+    update interval, twice (the second run hits the cache): same as the per-sample path."""
+    s = simulate(90, 100, 34.0, rpy_deg=(3, -4, 100), sway="car", seed=6)
+    C0 = (s.C0 @ dcm_from_rpy(np.array([30, -20, 120]) * DEG).T)[None]
+    cfg = AlignConfig(latitude_deg=34.0, backtrack_time=45.0)
+    dts = np.full(len(s.t), 0.01)
+    dts[2000:3503] *= 1.0 + 0.2 * np.sin(np.arange(1503))
+    ref = AlignmentFilter(cfg, C0, fast_backtrack=False)
+    ref.run(dts, s.gyro, s.accel)
+    for _ in range(2):
+        fast = AlignmentFilter(cfg, C0)
+        fast.run_fast(0.01, s.gyro[:2000], s.accel[:2000])
+        fast.run_fast(dts[2000:3503], s.gyro[2000:3503], s.accel[2000:3503])
+        fast.run_fast(0.01, s.gyro[3503:], s.accel[3503:])
+        assert_same(ref, fast)
