@@ -10,8 +10,16 @@ with ``E(s) = exp(-(w_ie x) s) = I + sin(W s) K + (1 - cos(W s)) K^2`` (K = skew
 vector -w_ie/|w_ie|), s_j = j dt. So
 ``sum_i E(s_i) C_0 u_i = C_0 A0 + K C_0 Aa + K^2 C_0 Ab`` with the three sums
 ``A0 = sum u_i, Aa = sum sin(W s_i) u_i, Ab = sum (1 - cos(W s_i)) u_i``, and the mean velocity
-over the interval needs the same sums weighted by (m - i + 1) dt. The prefix products are a
-Hillis-Steele scan over all intervals at once; everything is numpy over whole arrays.
+over the interval needs the same sums weighted by (m - i + 1) dt.
+
+How it is computed: intervals of equal length are reshaped (not copied) into (intervals,
+samples, runs), in pieces small enough that every scratch array stays in cache; the arrays
+are component-major (one array per quaternion or vector component). The prefix products
+run position by position, each step vectorised over all intervals and runs of the piece
+(a running product, so only step-sized scratch arrays exist); long intervals with few runs
+use a two-level scan instead, and a Hillis-Steele scan is the fallback when a step would be
+too small to pay numpy's per-call cost. The exponential of a gyro increment is a Taylor
+polynomial (exact to double precision below 1e-2 rad; the closed forms above that).
 """
 from __future__ import annotations
 
