@@ -64,7 +64,7 @@ def so3_exp(rotvec: np.ndarray) -> np.ndarray:
 
 def _so3_exp_one(rv: np.ndarray) -> np.ndarray:
     """so3_exp of a single rotation vector (shape (3,) or (1, 3)): same formulas, scalar math."""
-    x, y, z = (float(c) for c in rv.reshape(3))
+    x, y, z = rv.reshape(3).tolist()
     th2 = x * x + y * y + z * z
     if th2 < 1e-8:
         a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
