@@ -43,23 +43,15 @@ def so3_exp(rotvec: np.ndarray) -> np.ndarray:
     x, y, z = rv[..., 0], rv[..., 1], rv[..., 2]
     th2 = x * x + y * y + z * z
     if th2.size and float(th2.max()) < 1e-8:       # all below 1e-4 rad: series only
-        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
-        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+        a, b = _exp_series(th2)
     else:
         th = np.sqrt(th2)
         small = th < 1e-4
         ths = np.where(small, 1.0, th)
-        a = np.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, np.sin(ths) / ths)
-        b = np.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0,
-                     (1.0 - np.cos(ths)) / (ths * ths))
-    # I + a K + b K^2 with K^2 = v v^T - |v|^2 I, written out entry by entry
-    bx, by, bz = b * x, b * y, b * z
-    ax, ay, az = a * x, a * y, a * z
-    bxy, bxz, byz = bx * y, bx * z, by * z
-    return np.stack([1.0 - b * (y * y + z * z), bxy - az, bxz + ay,
-                     bxy + az, 1.0 - b * (x * x + z * z), byz - ax,
-                     bxz - ay, byz + ax, 1.0 - b * (x * x + y * y)],
-                    axis=-1).reshape(rv.shape[:-1] + (3, 3))
+        sa, sb = _exp_series(th2)
+        a = np.where(small, sa, np.sin(ths) / ths)
+        b = np.where(small, sb, (1.0 - np.cos(ths)) / (ths * ths))
+    return np.stack(_rodrigues(x, y, z, a, b), axis=-1).reshape(rv.shape[:-1] + (3, 3))
 
 
 def _so3_exp_one(rv: np.ndarray) -> np.ndarray:
@@ -67,17 +59,28 @@ def _so3_exp_one(rv: np.ndarray) -> np.ndarray:
     x, y, z = rv.reshape(3).tolist()
     th2 = x * x + y * y + z * z
     if th2 < 1e-8:
-        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
-        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+        a, b = _exp_series(th2)
     else:
         th = math.sqrt(th2)
         a = math.sin(th) / th
         b = (1.0 - math.cos(th)) / th2
-    bxy, bxz, byz = b * x * y, b * x * z, b * y * z
-    out = np.array([[1.0 - b * (y * y + z * z), bxy - a * z, bxz + a * y],
-                    [bxy + a * z, 1.0 - b * (x * x + z * z), byz - a * x],
-                    [bxz - a * y, byz + a * x, 1.0 - b * (x * x + y * y)]])
-    return out.reshape(rv.shape[:-1] + (3, 3))
+    return np.array(_rodrigues(x, y, z, a, b)).reshape(rv.shape[:-1] + (3, 3))
+
+
+def _exp_series(th2):
+    """sin(t)/t and (1 - cos t)/t^2 from t^2 by their Taylor series (exact below 1e-4 rad)."""
+    return 1.0 - th2 / 6.0 + th2 * th2 / 120.0, 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+
+
+def _rodrigues(x, y, z, a, b) -> tuple:
+    """The nine entries, row by row, of I + a K + b K^2 (K the skew matrix of (x, y, z),
+    K^2 = v v^T - |v|^2 I); floats or arrays."""
+    bx, by = b * x, b * y
+    ax, ay, az = a * x, a * y, a * z
+    bxy, bxz, byz = bx * y, bx * z, by * z
+    return (1.0 - b * (y * y + z * z), bxy - az, bxz + ay,
+            bxy + az, 1.0 - b * (x * x + z * z), byz - ax,
+            bxz - ay, byz + ax, 1.0 - b * (x * x + y * y))
 
 
 def quat_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
