@@ -23,6 +23,7 @@ polynomial (exact to double precision below 1e-2 rad; the closed forms above tha
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -132,13 +133,14 @@ def _scan(q, v=None):
     place, and the vectors ``v`` (component arrays of the same shape) rotated by them.
 
     One position after the other (each step vectorised over the other axes, scratch
-    arrays reused), or, when the steps are too small to pay numpy's per-call cost, a
-    Hillis-Steele scan (log2 L steps over whole arrays)."""
+    arrays reused); when the steps are too small to pay numpy's per-call cost, a two-level
+    scan (L = m1 m2 with a divisor near sqrt L) or, failing a divisor, a Hillis-Steele scan
+    (log2 L steps over whole arrays)."""
     x = q[0]
     L, width = x.shape[1], x.size // max(x.shape[1], 1)
     if L >= 16 and width < 1000 and all(c.flags.c_contiguous for c in q):
-        m2 = min(range(2, L), key=lambda d: (L % d != 0, abs(d * d - L)))
-        if L % m2 == 0:
+        m2 = _near_sqrt_divisor(L)
+        if m2:
             _two_level_scan(q, m2)
             if v is not None:
                 _qrot_c(q, v)
@@ -165,6 +167,13 @@ def _scan(q, v=None):
             bx[...], by[...], bz[...], bw[...] = o
         if v is not None:
             _qrot_c((bx, by, bz, bw), tuple(c[:, j] for c in v), buf)
+
+
+@functools.lru_cache(maxsize=64)
+def _near_sqrt_divisor(L: int) -> int:
+    """The divisor d of L (1 < d < L) with d^2 nearest L; 0 when L is prime."""
+    d = min(range(2, L), key=lambda d: (L % d != 0, abs(d * d - L)))
+    return d if L % d == 0 else 0
 
 
 def _two_level_scan(q, m2: int):
