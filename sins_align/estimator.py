@@ -672,9 +672,9 @@ class AlignmentFilter:
             S = Phi @ S + Gd
             P, K, _ = joseph_update(P, H, R)
             S = S - K @ (H @ S)
-            if i % 50 == 49:                      # stop once the attitude std has settled
+            if i % 25 == 24:                      # stop once the attitude std has settled
                 d = np.diagonal(self._with_bias(P, S), axis1=-2, axis2=-1)[..., :3]
-                if prev is not None and np.all(np.abs(d - prev) <= 2e-6 * d):
+                if prev is not None and np.all(np.abs(d - prev) <= 1e-6 * d):
                     break
                 prev = d
         P, S = P.reshape(-1, 6, 6), S.reshape(-1, 6, 6)
