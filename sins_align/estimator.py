@@ -440,6 +440,7 @@ class AlignmentFilter:
         if node is None:
             return
         period, t_acc = self._period(), self.t_acc
+        H0 = measurement_matrix("constant")
         plan = []
         for m in lengths.tolist()[:most]:
             t_acc += m * dt
@@ -449,7 +450,7 @@ class AlignmentFilter:
                 plan.append((m, self._averaged_H(t_acc, True), 1.0))
                 t_acc = 0.0
             else:
-                plan.append((m, measurement_matrix("constant"), 0.01 / t_acc))
+                plan.append((m, H0, 0.01 / t_acc))
                 t_acc = 0.0
         keys = [(m, dt, sc, None if H is None else H.tobytes()) for m, H, sc in plan]
         P, S, i = self.P[0], self.S[0], 0
@@ -470,11 +471,10 @@ class AlignmentFilter:
             m, H, scale = plan[i]
             Phi, Qd, Gm = self._disc_m(m, dt)
             if H is None:
-                Ps, Ss, Ks, Ns = [], [], [None] * (j - i), [None] * (j - i)
+                steps = []
                 for _ in range(j - i):
                     P, S = Phi @ P @ Phi.T + Qd, Phi @ S + Gm
-                    Ps.append(P)
-                    Ss.append(S)
+                    steps.append((P[None], S[None], None, None))
             else:
                 Ps, Ks, Sn = riccati_steps(P, Phi, Qd, H, self.R[0] * scale, j - i)
                 IKH = np.eye(6) - Ks @ H
@@ -482,11 +482,11 @@ class AlignmentFilter:
                 HS = H @ (Phi @ np.concatenate([S[None], Ss[:-1]]) + Gm)  # H S before update
                 Ns = inv3(Sn + (HS * self._bias_var) @ HS.mT)
                 P, S = Ps[-1], Ss[-1]
-            for k in range(j - i):
+                # entries of shape (1, ...): iterating over (n, 1, ...) arrays gives them
+                steps = zip(Ps[:, None], Ss[:, None], Ks[:, None], Ns[:, None])
+            for key, step in zip(keys[i:j], steps):
                 nxt = {}
-                node[keys[i + k]] = (Ps[k][None], Ss[k][None],
-                                     None if Ks[k] is None else Ks[k][None],
-                                     None if Ns[k] is None else Ns[k][None], nxt)
+                node[key] = (*step, nxt)
                 node = nxt
             _SCHEDULE_SIZE += j - i
             i = j
