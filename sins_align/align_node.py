@@ -59,6 +59,7 @@ REASON_TEXT = {
                      "or real motion)",
     "rates_look_like_deg_per_s": "gyro and accelerometer tilt disagree: angular_velocity "
                                  "looks like deg/s (REP-145 wants rad/s)",
+    "undecodable": "the message bytes are not a valid sensor_msgs/Imu",
 }
 
 WARN_PERIOD = 5.0   # s (wall) between warnings for one rejection reason
@@ -310,7 +311,14 @@ def _make_node_class():
             if layout is None or not layout.matches(raw):
                 layout = ImuLayout.of(raw)
                 if layout is None:
-                    self._on_imu(deserialize_message(raw, Imu))
+                    try:
+                        msg = deserialize_message(raw, Imu)
+                    except Exception:            # malformed bytes: count, warn, keep going
+                        self._rx_count += 1
+                        self.aligner.reject_undecodable()
+                        self._warn_rejected("undecodable")
+                        return
+                    self._on_imu(msg)
                     return
                 self._layout = layout
             sec, nanosec, w, f = layout.read(raw)

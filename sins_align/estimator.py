@@ -49,6 +49,7 @@ REJECT_REASONS = (
     "specific_force_out_of_range",  # ||f| - g| > specific_force_tolerance * g
     "rate_too_high",              # |w| > max_angular_rate (deg/s sent as rad/s, or real motion)
     "rates_look_like_deg_per_s",  # gyro/accelerometer tilt mismatch: rates scaled by 57.3
+    "undecodable",                # (align_node) a message whose bytes could not be decoded
 )
 
 #: blocks of at least this many clean samples take the fast path in Aligner.update
@@ -1045,6 +1046,11 @@ class Aligner:
         self.rejected[reason] += 1
         self.last_reject = reason
         return 0
+
+    def reject_undecodable(self):
+        """Count an input message that could not be decoded into a sample at all (reason
+        ``undecodable``); the state is not touched."""
+        self._reject("undecodable")
 
     def _sample(self, t: float, w: np.ndarray, f: np.ndarray) -> int:
         c = self.config

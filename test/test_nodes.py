@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+from rclpy.serialization import serialize_message
 from rclpy.qos import (DurabilityPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 from sensor_msgs.msg import Imu
@@ -452,6 +453,34 @@ def test_bad_samples_are_counted_by_reason_and_the_node_keeps_going(bad):
     assert int(d["samples_used"]) > used_before + 5 * RATE, d
     assert bad.node.alive()
     bad.t_end = t_c + c.t[-1]
+
+
+def test_undecodable_messages_are_counted_and_the_node_keeps_going(bad):
+    """Bytes that are no sensor_msgs/Imu (truncated, garbage after a CDR header) reach the
+    raw subscription: each is counted as 'undecodable', warned about by name, never
+    republished, and the samples around them are used as usual."""
+    t_end = getattr(bad, "t_end", None)
+    if t_end is None:
+        pytest.fail("needs the stream of the previous test")
+    good = serialize_message(_imu(0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 9.8]))
+    junk = [b"\x00\x01\x00\x00\x01\x02", good[:40], b"\x00\x01\x00\x00" + b"\xff" * 300]
+    a = simulate(2.0, rate=RATE, seed=15)
+    d0 = _accounted(bad)
+    used0, out0 = int(d0["samples_used"]), bad.out.count
+    msgs = []
+    for k in range(len(a.t)):
+        msgs.append(_imu(t_end + a.t[k], a.gyro[k], a.accel[k]))
+        if k % 25 == 10:
+            msgs.append(junk[(k // 25) % len(junk)])
+    n_junk = sum(isinstance(m, bytes) for m in msgs)
+    _send(bad, msgs)
+    d = _accounted(bad)
+    assert d.get("rejected_undecodable") == str(n_junk), d
+    assert int(d["samples_used"]) == used0 + len(a.t), d
+    assert bad.node.alive(), bad.node.output()
+    wait_until(lambda: bad.out.count == out0 + len(a.t), 5.0, "imu/data for the good samples")
+    assert "sample(s): undecodable" in bad.node.stderr()
+    bad.t_end = t_end + a.t[-1]
 
 
 def test_stamps_jumping_back_restart_the_alignment(bad):
