@@ -34,7 +34,8 @@ from .kalman import discretize, inv3, joseph_update, nis
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
 from .preint import earth_poly, open_loop_velocity, preintegrate, total_rotation
-from .rotation import dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm, so3_exp
+from .rotation import (dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm,
+                       so3_exp, so3_exp_entries)
 from .specs import DEG, SensorSpecs, grade_specs, limit_covariance
 
 #: Reasons a sample can be rejected. A rejected sample never touches the filter state.
@@ -208,9 +209,8 @@ class AlignmentFilter:
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
         self._K, self._W = earth_poly(self.w_ie)
         self._K2 = self._K @ self._K
-        # (9, 3): row 3 i + k holds row i of M_k^T, M = I, K, K^2 (see _advance_segments)
-        self._Mstack = np.stack([np.eye(3), self._K, self._K2], axis=-1).transpose(1, 2, 0) \
-            .reshape(9, 3)
+        # (3, 9): column 3 k + i holds column i of M_k, M = I, K, K^2 (see _advance_segments)
+        self._Gv = np.stack([np.eye(3), self._K, self._K2]).transpose(1, 0, 2).reshape(3, 9)
         self._cache: dict = {}
         self.on_update = None          # fast path: called with the sample index after updates
         self._rerun = False
@@ -371,30 +371,42 @@ class AlignmentFilter:
 
     def _advance_segments(self, dt, w, f, lengths, track_B: bool, offset: int | None):
         """Samples cut into update intervals (``lengths``): pre-integration of all of them,
-        then the intervals one by one (mechanization in closed form, update when due)."""
+        then the intervals one by one (mechanization in closed form, update when due).
+
+        In the loop the state is component-major, the attitude transposed:
+        ``Ct[k, i, n] = C[i, k, n]`` and ``v[:, n]`` for run n, so that each product of
+        per-run 3x3 matrices is one einsum over contiguous rows of the N runs, and each
+        product with a matrix shared by all runs is one GEMM.
+        """
         period = self._period()
         uniform = np.ndim(dt) == 0
-        dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
-        # columns k of A[i] (N, 3, 3) are the sums A0, Aa, Ab: C0 A_k = (C0 A[i])[:, :, k], and
-        # the velocity increment sum_k M_k C0 A_k is one (N, 9) @ (9, 3) product
-        Mk = self._Mstack
+        B, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
+        # P = C0 B[i] row by row: P[k] = C0 times column k of B[i] (Qm, then A0 Aa Ab, then
+        # V0 Va Vb); the velocity increment sum_k M_k C0 A_k is G @ P[3:6] as (9, N) rows
+        G = self._Gv
         H = measurement_matrix("constant")
         ends = np.cumsum(lengths).tolist()
         n = self.n
+        Ct = np.ascontiguousarray(self.C.transpose(2, 1, 0))
+        v = np.ascontiguousarray(self.v.T)
+        vs = np.ascontiguousarray(self.v_sum.T)
+        Bt = np.ascontiguousarray(self._B.transpose(2, 1, 0)) if track_B else None
         for i, m in enumerate(lengths.tolist()):
             Ti = m * dt if uniform else float(segT[i])
             dti = dt if uniform else float(dt[ends[i] - 1])
-            C0, v0 = self.C, self.v
-            self.v = v0 + ((C0 @ A[i]).reshape(n, 9) @ Mk + self.g_n * Ti)
+            P = np.einsum("jin,jkn->kin", Ct, B[i])
+            v0 = v
+            v = v0 + G @ P[3:6].reshape(9, n)
+            v += (self.g_n * Ti)[:, None]
             E = self._earth_rot(m, dt) if uniform else so3_exp(-self.w_ie * Ti)
-            self.C = E @ (C0 @ dcm_end[i])
+            Ct = np.matmul(E, P[:3])                         # (E C0 Qm)^T
             if track_B:
-                self._B = self._B @ dcm_end[i]
+                Bt = np.einsum("jin,jkn->kin", Bt, B[i, :, :3])
             self.t_int += Ti
             if self.fine:
-                self.v_sum = self.v_sum + v0 * Ti + (
-                    (C0 @ V[i]).reshape(n, 9) @ Mk
-                    + self.g_n * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i])))
+                vs = vs + v0 * Ti + G @ P[6:9].reshape(9, n)
+                vs += (self.g_n * (dt * dt * m * (m + 1) / 2.0 if uniform
+                                   else float(sdt[i])))[:, None]
             self.t_acc += Ti
             jumps = (lambda: self._disc_m(m, dt)) if uniform else (
                 lambda: self._disc_var(_part(dt, ends[i] - m, ends[i])))
@@ -408,14 +420,24 @@ class AlignmentFilter:
                     if uniform:
                         self._cache[("Ha", self.t_acc)] = Ha
                 Kg, Sinv = self._cov_block(m, dt, Ha, 1.0, jumps)
-                self._apply(self.v_sum / self.t_acc, Kg, Sinv)
-                self.v_sum = np.zeros((n, 3))
+                x = self._innovate(vs / self.t_acc, Kg, Sinv)
+                vs = np.zeros((3, n))
             else:
                 Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc, jumps)
-                self._apply(self.v, Kg, Sinv)
+                x = self._innovate(v, Kg, Sinv)
+            # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
+            R = np.array(so3_exp_entries(x[0], x[1], x[2])).reshape(3, 3, n)
+            Ct = np.einsum("rjn,kjn->krn", R, Ct)
+            v -= x[3:]
             self.t_acc = 0.0
             if self.on_update is not None and offset is not None:
+                self.C, self.v, self.v_sum = Ct.transpose(2, 1, 0), v.T, vs.T
                 self.on_update(offset + ends[i] - 1)
+        self.C = np.ascontiguousarray(Ct.transpose(2, 1, 0))
+        self.v = np.ascontiguousarray(v.T)
+        self.v_sum = np.ascontiguousarray(vs.T)
+        if track_B:
+            self._B = np.ascontiguousarray(Bt.transpose(2, 1, 0))
 
     def _disc_var(self, dts: np.ndarray):
         """Transition, process noise and bias input over samples of varying interval: what
@@ -572,14 +594,20 @@ class AlignmentFilter:
         return K, inv3(Sn + (HS * self._bias_var) @ HS.mT)
 
     def _apply(self, z, K, Sinv):
-        """State part of an update: feedback of K z, NIS bookkeeping, re-inflation."""
+        """State part of an update: feedback of K z (z (N, 3)), NIS bookkeeping,
+        re-inflation."""
+        x = self._innovate(z.T, K, Sinv)
+        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T)
+
+    def _innovate(self, z, K, Sinv):
+        """The correction ``x = K z`` of an update and its NIS bookkeeping (re-inflation
+        included), component-major: z (3, N), returns x (6, N)."""
         if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
-            x = z @ K[0].T
-            r = ((z @ Sinv[0]) * z) @ _THIRDS
+            x = K[0] @ z
+            r = _THIRDS @ ((Sinv[0] @ z) * z)
         else:
-            x = (K @ z[..., None])[..., 0]
-            r = nis(z, Sinv) / 3.0
-        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x)
+            x = np.einsum("nij,jn->in", K, z)
+            r = nis(z.T, Sinv) / 3.0
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
         self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
@@ -589,6 +617,7 @@ class AlignmentFilter:
                 self.t_int - self.last_reinflate >= c.reinflate_holdoff - 1e-6)
             if bad.any():
                 self._reinflate(bad)
+        return x
 
     def _reinflate(self, mask: np.ndarray):
         """Reset the covariance of the runs in ``mask`` to the pass's initial value.

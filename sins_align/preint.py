@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from .rotation import dcm_from_quat_components
+from .rotation import dcm_entries_from_quat
 
 
 def _qmul(a, b):
@@ -226,8 +226,7 @@ def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: boo
     S = T // m
     s = dt * np.arange(1, m + 1)
     wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag))        # (k, m)
-    A = np.empty((S, N, 3, len(wts)))
-    dcm = np.empty((S, N, 3, 3))
+    B = np.empty((S, 3, 3 + len(wts), N))
     per = max(1, _PIECE // N)
     work = np.empty((6, min(per, S), m, N))           # reused: no page faults per piece
     for a in range(0, S, per):
@@ -242,9 +241,9 @@ def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: boo
             qend = tuple(c[:, -1] for c in q)
         else:
             qend = _running_scan(rot, u)
-        A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 3, 1, 0)
-        dcm[a:b] = dcm_from_quat_components(*qend)
-    return dcm, A, float(s[-1]), float((s * dt).sum())
+        B[a:b, :, 3:] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 1, 0, 3)
+        B[a:b, :, :3] = np.stack(dcm_entries_from_quat(*qend), 1).reshape(b - a, 3, 3, N)
+    return B, float(s[-1]), float((s * dt).sum())
 
 
 def _running_scan(rot, u):
@@ -283,9 +282,11 @@ def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
     s = np.cumsum(dtp, axis=1)                        # time since the interval's start
     seg_t = s[:, -1]
     ws = _weights(dtp, s, seg_t[:, None], mean_weights, w_ie_mag)
-    A = np.einsum("ksl,jsln->snjk", np.array(ws) * valid, u)
+    B = np.empty((S, 3, 3 + len(ws), N))
+    B[:, :, 3:] = np.einsum("ksl,jsln->sjkn", np.array(ws) * valid, u)
     last = (np.arange(S), lengths - 1)
-    return dcm_from_quat_components(*(c[last] for c in q)), A, seg_t, (s * dtp).sum(axis=1)
+    B[:, :, :3] = np.stack(dcm_entries_from_quat(*(c[last] for c in q)), 1).reshape(S, 3, 3, N)
+    return B, seg_t, (s * dtp).sum(axis=1)
 
 
 def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
@@ -304,9 +305,10 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
 
     Returns
     -------
-    dcm_end : ndarray (S, N, 3, 3) — Q_m as a DCM (body rotation over the interval).
-    A : ndarray (S, N, 3, 3) — columns A0, Aa, Ab of each run (m/s).
-    V : ndarray (S, N, 3, 3) or None — columns V0, Va, Vb, the mean-velocity sums (m).
+    B : ndarray (S, 3, K, N), component-major: column k of each interval and run in
+        ``B[s, :, k, n]``. Columns 0-2: Q_m as a DCM (body rotation over the interval);
+        3-5: A0, Aa, Ab (m/s); 6-8 (K = 9, with ``mean_weights``): V0, Va, Vb, the
+        mean-velocity sums (m).
     seg_t : ndarray (S,) — duration of each interval, s.
     s_dt : ndarray (S,) — sum over the interval of (time since its start) x dt, s^2.
     """
@@ -317,16 +319,12 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
         parts, k = [], 0
         for grp in np.split(lengths, cut):
             n = len(grp) * int(grp[0])
-            dcm, A, Ti, sd = _equal_intervals(float(dt), w[k:k + n], f[k:k + n], int(grp[0]),
-                                             w_ie_mag, mean_weights)
-            parts.append((dcm, A, np.full(len(grp), Ti), np.full(len(grp), sd)))
+            B, Ti, sd = _equal_intervals(float(dt), w[k:k + n], f[k:k + n], int(grp[0]),
+                                         w_ie_mag, mean_weights)
+            parts.append((B, np.full(len(grp), Ti), np.full(len(grp), sd)))
             k += n
-        dcm, A, seg_t, s_dt = (p[0] if len(parts) == 1 else np.concatenate(p)
-                               for p in zip(*parts))
-    else:
-        dcm, A, seg_t, s_dt = _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights)
-    V = np.ascontiguousarray(A[..., 3:]) if mean_weights else None
-    return dcm, np.ascontiguousarray(A[..., :3]), V, seg_t, s_dt
+        return tuple(p[0] if len(parts) == 1 else np.concatenate(p) for p in zip(*parts))
+    return _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights)
 
 
 def total_rotation(dt, w: np.ndarray) -> np.ndarray:
