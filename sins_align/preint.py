@@ -46,30 +46,32 @@ def _qexp(rv):
     return _qexp_c(rv[..., 0].copy(), rv[..., 1].copy(), rv[..., 2].copy())
 
 
+#: Taylor coefficients in t^2 of sin(t/2)/t and cos(t/2)
+_SIN_HALF = (0.5, -1.0 / 48.0, 1.0 / 3840.0, -1.0 / 645120.0, 1.0 / 185794560.0)
+_COS_HALF = (1.0, -1.0 / 8.0, 1.0 / 384.0, -1.0 / 46080.0, 1.0 / 10321920.0)
+
+
 def _qexp_c(ax, ay, az):
     """Quaternion components of exp(a) from component arrays, overwriting ax, ay, az.
 
     When every angle is below 1e-2 rad (IMU increments always are) the coefficients are
-    Taylor polynomials whose first omitted term is below 1e-20: exact to double precision,
-    with no sqrt / sin / cos. Otherwise the closed forms (series below 1e-4 rad).
+    Taylor polynomials in t^2, with as many terms (1 to 4) as the largest angle needs for
+    the first omitted term to stay below 1e-20: exact to double precision, with no
+    sqrt / sin / cos. Otherwise the closed forms (series below 1e-4 rad).
     """
     th2 = ax * ax
     th2 += ay * ay
     th2 += az * az
-    if th2.size == 0 or float(th2.max()) < 1e-4:
-        # sin(t/2)/t = 1/2 - t^2/48 + t^4/3840 - t^6/645120, cos(t/2) = 1 - t^2/8 + ...
-        k = th2 * (-1.0 / 645120.0)
-        k += 1.0 / 3840.0
-        k *= th2
-        k -= 1.0 / 48.0
-        k *= th2
-        k += 0.5
-        c = th2 * (-1.0 / 46080.0)
-        c += 1.0 / 384.0
-        c *= th2
-        c -= 1.0 / 8.0
-        c *= th2
-        c += 1.0
+    top = float(th2.max()) if th2.size else 0.0
+    if top < 1e-4:
+        n = next(n for n in range(1, 5) if top ** n * abs(_COS_HALF[n]) < 1e-20)
+        k, c = (np.full_like(th2, v[n - 1]) if n == 1 else th2 * v[n - 1]
+                for v in (_SIN_HALF, _COS_HALF))
+        for v, p in ((_SIN_HALF, k), (_COS_HALF, c)):
+            for i in range(n - 2, -1, -1):
+                p += v[i]
+                if i:
+                    p *= th2
     else:
         th = np.sqrt(th2)
         small = th < 1e-4
@@ -228,39 +230,45 @@ def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: boo
     wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag))        # (k, m)
     B = np.empty((S, 3, 3 + len(wts), N))
     per = max(1, _PIECE // N)
-    work = np.empty((6, min(per, S), m, N))           # reused: no page faults per piece
+    size = 3 * min(per, S) * m * N
+    work = np.empty((2, size))                        # reused: no page faults per piece
     for a in range(0, S, per):
         b = min(S, a + per)
-        rot, u = work[:3, :b - a], work[3:, :b - a]
+        # long intervals, few runs: the whole-array scan along the positions of (3, S, m, N)
+        # arrays; otherwise the running scan on position-major (m, 3, S, N) arrays, whose
+        # steps are contiguous and whose weighted sums are one GEMM without a copy
+        whole = m >= 16 and (b - a) * N < 1000
+        shape, order, pos = ((3, b - a, m, N), (3, 0, 1, 2), 2) if whole else \
+            ((m, 3, b - a, N), (1, 3, 0, 2), 0)
+        rot, u = (x[:3 * (b - a) * m * N].reshape(shape) for x in work)
         for out, x in ((rot, w), (u, f)):
-            np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2), dt,
-                        out=out)
-        if m >= 16 and (b - a) * N < 1000:            # long intervals, few runs: whole arrays
+            np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(order), dt, out=out)
+        if whole:
             q = _qexp_c(rot[0], rot[1], rot[2])
             _scan(q, u)
             qend = tuple(c[:, -1] for c in q)
         else:
             qend = _running_scan(rot, u)
-        B[a:b, :, 3:] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 1, 0, 3)
+        B[a:b, :, 3:] = np.tensordot(wts, u, axes=([1], [pos])).transpose(2, 1, 0, 3)
         B[a:b, :, :3] = np.stack(dcm_entries_from_quat(*qend), 1).reshape(b - a, 3, 3, N)
     return B, float(s[-1]), float((s * dt).sum())
 
 
 def _running_scan(rot, u):
-    """Rotation vectors ``rot`` (3, S, m, ...) of m steps: rotate each ``u`` (same shape) by
+    """Rotation vectors ``rot`` (m, 3, ...) of m steps: rotate each ``u`` (same shape) by
     the product of the steps up to and including its own, in place; return the product of
     all m (quaternion components). Position by position: only step-sized scratch arrays."""
     q = None
-    buf = [np.empty_like(rot[0, :, 0]) for _ in range(9)]
-    for j in range(rot.shape[2]):
-        e = _qexp_c(*(rot[i, :, j] for i in range(3)))
+    buf = [np.empty_like(rot[0, 0]) for _ in range(9)]
+    for j in range(rot.shape[0]):
+        e = _qexp_c(*rot[j])
         if q is None:
             q = tuple(np.array(c) for c in e)
         else:
             out = tuple(buf[4:8])
             _qmul_into(q, e, out, buf[8])
             buf[4:8], q = list(q), out
-        _qrot_c(q, tuple(u[i, :, j] for i in range(3)), buf[:3] + [buf[8]])
+        _qrot_c(q, tuple(u[j]), buf[:3] + [buf[8]])
     return q
 
 
