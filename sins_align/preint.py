@@ -221,37 +221,56 @@ def _weights(dt, s, seg_t, mean_weights: bool, w_ie_mag: float) -> list:
     return ws
 
 
-def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: bool):
-    """Sums of S = len(w) / m intervals of m samples each, uniform dt, in pieces of about
-    _PIECE samples per position, component-major, so every temporary stays in cache."""
+def scratch_array(scratch: dict | None, name: str, shape: tuple) -> np.ndarray:
+    """An uninitialised float array of ``shape``, taken from ``scratch`` (a dict its owner
+    keeps between calls; grown when too small) or new without one. Large temporaries
+    reused this way are not faulted in page by page again at every call, as arrays above
+    malloc's mmap threshold (128 kB) would be."""
+    size = math.prod(shape)
+    if scratch is None:
+        return np.empty(shape)
+    buf = scratch.get(name)
+    if buf is None or buf.size < size:
+        buf = scratch[name] = np.empty(size)
+    return buf[:size].reshape(shape)
+
+
+def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: bool, B,
+                     scratch: dict | None):
+    """Sums of S = len(w) / m intervals of m samples each, uniform dt, into ``B`` (S, 3, K,
+    N) (see :func:`preintegrate`), in pieces of about _PIECE samples per position,
+    component-major, so every temporary stays in cache."""
     T, N = w.shape[0], w.shape[1]
     S = T // m
     s = dt * np.arange(1, m + 1)
     wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag))        # (k, m)
-    B = np.empty((S, 3, 3 + len(wts), N))
     per = max(1, _PIECE // N)
-    size = 3 * min(per, S) * m * N
-    work = np.empty((2, size))                        # reused: no page faults per piece
+    size = (3, min(per, S) * m * N)
+    rot_buf, u_buf = (scratch_array(scratch, name, size) for name in ("rot", "u"))
     for a in range(0, S, per):
         b = min(S, a + per)
         # long intervals, few runs: the whole-array scan along the positions of (3, S, m, N)
         # arrays; otherwise the running scan on position-major (m, 3, S, N) arrays, whose
         # steps are contiguous and whose weighted sums are one GEMM without a copy
         whole = m >= 16 and (b - a) * N < 1000
-        shape, order, pos = ((3, b - a, m, N), (3, 0, 1, 2), 2) if whole else \
-            ((m, 3, b - a, N), (1, 3, 0, 2), 0)
-        rot, u = (x[:3 * (b - a) * m * N].reshape(shape) for x in work)
+        shape, order = ((3, b - a, m, N), (3, 0, 1, 2)) if whole else \
+            ((m, 3, b - a, N), (1, 3, 0, 2))
+        rot, u = (x.reshape(-1)[:3 * (b - a) * m * N].reshape(shape) for x in (rot_buf, u_buf))
         for out, x in ((rot, w), (u, f)):
             np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(order), dt, out=out)
         if whole:
             q = _qexp_c(rot[0], rot[1], rot[2])
             _scan(q, u)
             qend = tuple(c[:, -1] for c in q)
+            sums = np.tensordot(wts, u, axes=([1], [2]))
         else:
             qend = _running_scan(rot, u)
-        B[a:b, :, 3:] = np.tensordot(wts, u, axes=([1], [pos])).transpose(2, 1, 0, 3)
-        B[a:b, :, :3] = np.stack(dcm_entries_from_quat(*qend), 1).reshape(b - a, 3, 3, N)
-    return B, float(s[-1]), float((s * dt).sum())
+            sums = np.matmul(wts, u.reshape(m, -1),
+                             out=scratch_array(scratch, "sums", (len(wts), 3 * (b - a) * N)))
+        B[a:b, :, 3:] = sums.reshape(len(wts), 3, b - a, N).transpose(2, 1, 0, 3)
+        for c, e in enumerate(dcm_entries_from_quat(*qend)):
+            B[a:b, c // 3, c % 3] = e
+    return float(s[-1]), float((s * dt).sum())
 
 
 def _running_scan(rot, u):
@@ -272,9 +291,10 @@ def _running_scan(rot, u):
     return q
 
 
-def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
-    """Sums of intervals of any lengths and per-sample dt (jittered stamps): the
-    intervals padded to the longest with zero rates and forces."""
+def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool, B):
+    """Sums of intervals of any lengths and per-sample dt (jittered stamps) into ``B``
+    (see :func:`preintegrate`): the intervals padded to the longest with zero rates and
+    forces."""
     S, L = len(lengths), int(lengths.max())
     T, N = w.shape[0], w.shape[1]
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -290,15 +310,14 @@ def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
     s = np.cumsum(dtp, axis=1)                        # time since the interval's start
     seg_t = s[:, -1]
     ws = _weights(dtp, s, seg_t[:, None], mean_weights, w_ie_mag)
-    B = np.empty((S, 3, 3 + len(ws), N))
     B[:, :, 3:] = np.einsum("ksl,jsln->sjkn", np.array(ws) * valid, u)
     last = (np.arange(S), lengths - 1)
     B[:, :, :3] = np.stack(dcm_entries_from_quat(*(c[last] for c in q)), 1).reshape(S, 3, 3, N)
-    return B, seg_t, (s * dtp).sum(axis=1)
+    return seg_t, (s * dtp).sum(axis=1)
 
 
 def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
-                 w_ie_mag: float, mean_weights: bool):
+                 w_ie_mag: float, mean_weights: bool, scratch: dict | None = None):
     """Attitude-independent sums of each interval.
 
     Parameters
@@ -310,6 +329,8 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     w_ie_mag : float, rad/s — Earth rate magnitude.
     mean_weights : also return the sums weighted by the time left in the interval, for
         the interval's mean velocity.
+    scratch : dict kept by the caller for the large arrays (see :func:`scratch_array`); B
+        is then a view into it, valid until the next call with the same dict.
 
     Returns
     -------
@@ -321,18 +342,19 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     s_dt : ndarray (S,) — sum over the interval of (time since its start) x dt, s^2.
     """
     lengths = np.asarray(lengths)
-    if np.ndim(dt) == 0:
-        # uniform dt: consecutive intervals of equal length are reshaped, not copied
-        cut = np.flatnonzero(np.diff(lengths)) + 1
-        parts, k = [], 0
-        for grp in np.split(lengths, cut):
-            n = len(grp) * int(grp[0])
-            B, Ti, sd = _equal_intervals(float(dt), w[k:k + n], f[k:k + n], int(grp[0]),
-                                         w_ie_mag, mean_weights)
-            parts.append((B, np.full(len(grp), Ti), np.full(len(grp), sd)))
-            k += n
-        return tuple(p[0] if len(parts) == 1 else np.concatenate(p) for p in zip(*parts))
-    return _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights)
+    B = scratch_array(scratch, "B", (len(lengths), 3, 9 if mean_weights else 6, w.shape[1]))
+    if np.ndim(dt) != 0:
+        return (B,) + _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights, B)
+    # uniform dt: consecutive intervals of equal length are reshaped, not copied
+    seg_t, s_dt = np.empty(len(lengths)), np.empty(len(lengths))
+    k = i = 0
+    for grp in np.split(lengths, np.flatnonzero(np.diff(lengths)) + 1):
+        n, j = len(grp) * int(grp[0]), i + len(grp)
+        seg_t[i:j], s_dt[i:j] = _equal_intervals(float(dt), w[k:k + n], f[k:k + n],
+                                                 int(grp[0]), w_ie_mag, mean_weights,
+                                                 B[i:j], scratch)
+        k, i = k + n, j
+    return B, seg_t, s_dt
 
 
 def total_rotation(dt, w: np.ndarray) -> np.ndarray:
