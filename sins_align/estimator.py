@@ -34,8 +34,9 @@ from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
 from .kalman import affine_scan, discretize, inv3, joseph_update, nis, riccati_steps
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
-from .preint import earth_poly, open_loop_velocity, preintegrate, total_rotation
-from .rotation import dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm, so3_exp
+from .preint import earth_poly, open_loop_velocity, preintegrate, scratch_array, total_rotation
+from .rotation import (dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm,
+                       so3_exp, so3_exp_entries)
 from .specs import DEG, SensorSpecs, grade_specs, limit_covariance
 
 #: Reasons a sample can be rejected. A rejected sample never touches the filter state.
@@ -210,10 +211,11 @@ class AlignmentFilter:
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
         self._K, self._W = earth_poly(self.w_ie)
         self._K2 = self._K @ self._K
-        # (9, 3): row 3 i + k holds row i of M_k^T, M = I, K, K^2 (see _advance_segments)
-        self._Mstack = np.stack([np.eye(3), self._K, self._K2], axis=-1).transpose(1, 2, 0) \
-            .reshape(9, 3)
+        # (3, 9): column 3 k + i holds column i of M_k, M = I, K, K^2 (see _advance_segments)
+        self._g_col = self.g_n[:, None]
+        self._Gv = np.stack([np.eye(3), self._K, self._K2]).transpose(1, 0, 2).reshape(3, 9)
         self._cache: dict = {}
+        self._scratch: dict = {}       # the fast path's large temporaries, reused (scratch_array)
         self.on_update = None          # fast path: called with the sample index after updates
         self._rerun = False
         self._cfg_key = (c.model, self.w_ie.tobytes(), self.g_n.tobytes(), self.Qc.tobytes(),
@@ -351,13 +353,19 @@ class AlignmentFilter:
         """
         period = self._period()
         T = len(w)
-        lengths = []
-        left, k = period - self.t_acc, 0
-        while k < T:
-            m = min(T - k, self._samples_until(left, _part(dt, k, T)))
-            lengths.append(m)
-            k += m
-            left = period
+        left = period - self.t_acc
+        if np.ndim(dt) == 0:                # uniform: every interval after the first is alike
+            m0 = min(T, self._samples_until(left, dt))
+            mp = self._samples_until(period, dt)
+            full, rest = divmod(T - m0, mp)
+            lengths = [m0] + [mp] * full + ([rest] if rest else [])
+        else:
+            lengths, k = [], 0
+            while k < T:
+                m = min(T - k, self._samples_until(left, _part(dt, k, T)))
+                lengths.append(m)
+                k += m
+                left = period
         # pieces of about _PIECE_SAMPLE_RUNS sample-runs keep the pre-integrated sums small
         per = max(1, _PIECE_SAMPLE_RUNS // self.n)
         starts = np.concatenate([[0], np.cumsum(lengths)])
@@ -373,49 +381,81 @@ class AlignmentFilter:
 
     def _advance_segments(self, dt, w, f, lengths, track_B: bool, offset: int | None):
         """Samples cut into update intervals (``lengths``): pre-integration of all of them,
-        then the intervals one by one (mechanization in closed form, update when due)."""
+        then the intervals one by one (mechanization in closed form, update when due).
+
+        In the loop the state is component-major, the attitude transposed:
+        ``Ct[k, i, n] = C[i, k, n]`` and ``v[:, n]`` for run n, so that each product of
+        per-run 3x3 matrices is one einsum over contiguous rows of the N runs, and each
+        product with a matrix shared by all runs is one GEMM. Every array of N runs is
+        written into a reused scratch array (no page faults per update).
+        """
         period = self._period()
         uniform = np.ndim(dt) == 0
-        dcm_end, A, V, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine)
+        sc = self._scratch
+        B, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine, sc)
         if uniform:
             self._prefetch_schedule(lengths, dt)
-        # columns k of A[i] (N, 3, 3) are the sums A0, Aa, Ab: C0 A_k = (C0 A[i])[:, :, k], and
-        # the velocity increment sum_k M_k C0 A_k is one (N, 9) @ (9, 3) product
-        Mk = self._Mstack
+        # P = C0 B[i] row by row: P[k] = C0 times column k of B[i] (Qm, then A0 Aa Ab, then
+        # V0 Va Vb); the velocity increment sum_k M_k C0 A_k is G @ P[3:6] as (9, N) rows
+        G = self._Gv
         H = measurement_matrix("constant")
         ends = np.cumsum(lengths).tolist()
         n = self.n
+        P = scratch_array(sc, "P", (B.shape[2], 3, n))
+        Ct, X = (scratch_array(sc, name, (3, 3, n)) for name in ("C", "X"))
+        v, vs, inc = (scratch_array(sc, name, (3, n)) for name in ("v", "v_sum", "inc"))
+        x = scratch_array(sc, "x", (6, n))
+        Ct[...] = self.C.transpose(2, 1, 0)
+        v[...] = self.v.T
+        vs[...] = self.v_sum.T
+        if track_B:
+            Bt, BX = (scratch_array(sc, name, (3, 3, n)) for name in ("Bt", "BX"))
+            Bt[...] = self._B.transpose(2, 1, 0)
         for i, m in enumerate(lengths.tolist()):
             Ti = m * dt if uniform else float(segT[i])
             dti = dt if uniform else float(dt[ends[i] - 1])
-            C0, v0 = self.C, self.v
-            self.v = v0 + ((C0 @ A[i]).reshape(n, 9) @ Mk + self.g_n * Ti)
+            np.einsum("jin,jkn->kin", Ct, B[i], out=P)
             E = self._earth_rot(m, dt) if uniform else so3_exp(-self.w_ie * Ti)
-            self.C = E @ (C0 @ dcm_end[i])
+            np.matmul(E, P[:3], out=X)                       # (E C0 Qm)^T
             if track_B:
-                self._B = self._B @ dcm_end[i]
-            self.t_int += Ti
+                np.einsum("jin,jkn->kin", Bt, B[i, :, :3], out=BX)
+                Bt, BX = BX, Bt
             if self.fine:
-                self.v_sum = self.v_sum + v0 * Ti + (
-                    (C0 @ V[i]).reshape(n, 9) @ Mk
-                    + self.g_n * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i])))
+                vs += v * Ti
+                vs += np.matmul(G, P[6:9].reshape(9, n), out=inc)
+                vs += self._g_col * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i]))
+            v += np.matmul(G, P[3:6].reshape(9, n), out=inc)
+            v += self._g_col * Ti
+            self.t_int += Ti
             self.t_acc += Ti
             jumps = (lambda: self._disc_m(m, dt)) if uniform else (
                 lambda: self._disc_var(_part(dt, ends[i] - m, ends[i])))
             if self.t_acc < period - 0.5 * dti:     # partial interval: no update yet
                 self._cov_block(m, dt, None, 0.0, jumps)
+                Ct, X = X, Ct
                 continue
             if self.fine:
                 Kg, Sinv = self._cov_block(m, dt, self._averaged_H(self.t_acc, uniform), 1.0,
                                            jumps)
-                self._apply(self.v_sum / self.t_acc, Kg, Sinv)
-                self.v_sum = np.zeros((n, 3))
+                self._innovate(vs / self.t_acc, Kg, Sinv, out=x)
+                vs[...] = 0.0
             else:
                 Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc, jumps)
-                self._apply(self.v, Kg, Sinv)
+                self._innovate(v, Kg, Sinv, out=x)
+            # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
+            ent = so3_exp_entries(x[0], x[1], x[2])           # floats when N = 1
+            R = np.array(ent) if n == 1 else np.stack(ent, out=scratch_array(sc, "R", (9, n)))
+            np.einsum("rjn,kjn->krn", R.reshape(3, 3, n), X, out=Ct)
+            v -= x[3:]
             self.t_acc = 0.0
             if self.on_update is not None and offset is not None:
+                self.C, self.v = Ct.transpose(2, 1, 0).copy(), v.T.copy()   # the state now
                 self.on_update(offset + ends[i] - 1)
+        self.C = np.ascontiguousarray(Ct.transpose(2, 1, 0))
+        self.v = np.ascontiguousarray(v.T)
+        self.v_sum = np.ascontiguousarray(vs.T)
+        if track_B:
+            self._B = np.ascontiguousarray(Bt.transpose(2, 1, 0))
 
     def _averaged_H(self, period: float, cache: bool):
         """H of the fine pass's mean-velocity measurement over ``period`` s (constant model)."""
@@ -648,14 +688,20 @@ class AlignmentFilter:
         return K, inv3(Sn + (HS * self._bias_var) @ HS.mT)
 
     def _apply(self, z, K, Sinv):
-        """State part of an update: feedback of K z, NIS bookkeeping, re-inflation."""
+        """State part of an update: feedback of K z (z (N, 3)), NIS bookkeeping,
+        re-inflation."""
+        x = self._innovate(z.T, K, Sinv)
+        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T)
+
+    def _innovate(self, z, K, Sinv, out=None):
+        """The correction ``x = K z`` of an update and its NIS bookkeeping (re-inflation
+        included), component-major: z (3, N), returns x (6, N) (in ``out`` if given)."""
         if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
-            x = z @ K[0].T
-            r = ((z @ Sinv[0]) * z) @ _THIRDS
+            x = np.matmul(K[0], z, out=out)
+            r = _THIRDS @ ((Sinv[0] @ z) * z)
         else:
-            x = (K @ z[..., None])[..., 0]
-            r = nis(z, Sinv) / 3.0
-        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x)
+            x = np.einsum("nij,jn->in", K, z, out=out)
+            r = nis(z.T, Sinv) / 3.0
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
         self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
@@ -665,6 +711,7 @@ class AlignmentFilter:
                 self.t_int - self.last_reinflate >= c.reinflate_holdoff - 1e-6)
             if bad.any():
                 self._reinflate(bad)
+        return x
 
     def _reinflate(self, mask: np.ndarray):
         """Reset the covariance of the runs in ``mask`` to the pass's initial value.

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from .rotation import dcm_from_quat_components
+from .rotation import dcm_entries_from_quat
 
 
 def _qmul(a, b):
@@ -46,30 +46,32 @@ def _qexp(rv):
     return _qexp_c(rv[..., 0].copy(), rv[..., 1].copy(), rv[..., 2].copy())
 
 
+#: Taylor coefficients in t^2 of sin(t/2)/t and cos(t/2)
+_SIN_HALF = (0.5, -1.0 / 48.0, 1.0 / 3840.0, -1.0 / 645120.0, 1.0 / 185794560.0)
+_COS_HALF = (1.0, -1.0 / 8.0, 1.0 / 384.0, -1.0 / 46080.0, 1.0 / 10321920.0)
+
+
 def _qexp_c(ax, ay, az):
     """Quaternion components of exp(a) from component arrays, overwriting ax, ay, az.
 
     When every angle is below 1e-2 rad (IMU increments always are) the coefficients are
-    Taylor polynomials whose first omitted term is below 1e-20: exact to double precision,
-    with no sqrt / sin / cos. Otherwise the closed forms (series below 1e-4 rad).
+    Taylor polynomials in t^2, with as many terms (1 to 4) as the largest angle needs for
+    the first omitted term to stay below 1e-20: exact to double precision, with no
+    sqrt / sin / cos. Otherwise the closed forms (series below 1e-4 rad).
     """
     th2 = ax * ax
     th2 += ay * ay
     th2 += az * az
-    if th2.size == 0 or float(th2.max()) < 1e-4:
-        # sin(t/2)/t = 1/2 - t^2/48 + t^4/3840 - t^6/645120, cos(t/2) = 1 - t^2/8 + ...
-        k = th2 * (-1.0 / 645120.0)
-        k += 1.0 / 3840.0
-        k *= th2
-        k -= 1.0 / 48.0
-        k *= th2
-        k += 0.5
-        c = th2 * (-1.0 / 46080.0)
-        c += 1.0 / 384.0
-        c *= th2
-        c -= 1.0 / 8.0
-        c *= th2
-        c += 1.0
+    top = float(th2.max()) if th2.size else 0.0
+    if top < 1e-4:
+        n = next(n for n in range(1, 5) if top ** n * abs(_COS_HALF[n]) < 1e-20)
+        k, c = (np.full_like(th2, v[n - 1]) if n == 1 else th2 * v[n - 1]
+                for v in (_SIN_HALF, _COS_HALF))
+        for v, p in ((_SIN_HALF, k), (_COS_HALF, c)):
+            for i in range(n - 2, -1, -1):
+                p += v[i]
+                if i:
+                    p *= th2
     else:
         th = np.sqrt(th2)
         small = th < 1e-4
@@ -219,55 +221,80 @@ def _weights(dt, s, seg_t, mean_weights: bool, w_ie_mag: float) -> list:
     return ws
 
 
-def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: bool):
-    """Sums of S = len(w) / m intervals of m samples each, uniform dt, in pieces of about
-    _PIECE samples per position, component-major, so every temporary stays in cache."""
+def scratch_array(scratch: dict | None, name: str, shape: tuple) -> np.ndarray:
+    """An uninitialised float array of ``shape``, taken from ``scratch`` (a dict its owner
+    keeps between calls; grown when too small) or new without one. Large temporaries
+    reused this way are not faulted in page by page again at every call, as arrays above
+    malloc's mmap threshold (128 kB) would be."""
+    size = math.prod(shape)
+    if scratch is None:
+        return np.empty(shape)
+    buf = scratch.get(name)
+    if buf is None or buf.size < size:
+        buf = scratch[name] = np.empty(size)
+    return buf[:size].reshape(shape)
+
+
+def _equal_intervals(dt: float, w, f, m: int, w_ie_mag: float, mean_weights: bool, B,
+                     scratch: dict | None):
+    """Sums of S = len(w) / m intervals of m samples each, uniform dt, into ``B`` (S, 3, K,
+    N) (see :func:`preintegrate`), in pieces of about _PIECE samples per position,
+    component-major, so every temporary stays in cache."""
     T, N = w.shape[0], w.shape[1]
     S = T // m
     s = dt * np.arange(1, m + 1)
     wts = np.array(_weights(dt, s, s[-1], mean_weights, w_ie_mag))        # (k, m)
-    A = np.empty((S, N, 3, len(wts)))
-    dcm = np.empty((S, N, 3, 3))
     per = max(1, _PIECE // N)
-    work = np.empty((6, min(per, S), m, N))           # reused: no page faults per piece
+    size = (3, min(per, S) * m * N)
+    rot_buf, u_buf = (scratch_array(scratch, name, size) for name in ("rot", "u"))
     for a in range(0, S, per):
         b = min(S, a + per)
-        rot, u = work[:3, :b - a], work[3:, :b - a]
+        # long intervals, few runs: the whole-array scan along the positions of (3, S, m, N)
+        # arrays; otherwise the running scan on position-major (m, 3, S, N) arrays, whose
+        # steps are contiguous and whose weighted sums are one GEMM without a copy
+        whole = m >= 16 and (b - a) * N < 1000
+        shape, order = ((3, b - a, m, N), (3, 0, 1, 2)) if whole else \
+            ((m, 3, b - a, N), (1, 3, 0, 2))
+        rot, u = (x.reshape(-1)[:3 * (b - a) * m * N].reshape(shape) for x in (rot_buf, u_buf))
         for out, x in ((rot, w), (u, f)):
-            np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(3, 0, 1, 2), dt,
-                        out=out)
-        if m >= 16 and (b - a) * N < 1000:            # long intervals, few runs: whole arrays
+            np.multiply(x[a * m:b * m].reshape(b - a, m, N, 3).transpose(order), dt, out=out)
+        if whole:
             q = _qexp_c(rot[0], rot[1], rot[2])
             _scan(q, u)
             qend = tuple(c[:, -1] for c in q)
+            sums = np.tensordot(wts, u, axes=([1], [2]))
         else:
             qend = _running_scan(rot, u)
-        A[a:b] = np.tensordot(wts, u, axes=([1], [2])).transpose(2, 3, 1, 0)
-        dcm[a:b] = dcm_from_quat_components(*qend)
-    return dcm, A, float(s[-1]), float((s * dt).sum())
+            sums = np.matmul(wts, u.reshape(m, -1),
+                             out=scratch_array(scratch, "sums", (len(wts), 3 * (b - a) * N)))
+        B[a:b, :, 3:] = sums.reshape(len(wts), 3, b - a, N).transpose(2, 1, 0, 3)
+        for c, e in enumerate(dcm_entries_from_quat(*qend)):
+            B[a:b, c // 3, c % 3] = e
+    return float(s[-1]), float((s * dt).sum())
 
 
 def _running_scan(rot, u):
-    """Rotation vectors ``rot`` (3, S, m, ...) of m steps: rotate each ``u`` (same shape) by
+    """Rotation vectors ``rot`` (m, 3, ...) of m steps: rotate each ``u`` (same shape) by
     the product of the steps up to and including its own, in place; return the product of
     all m (quaternion components). Position by position: only step-sized scratch arrays."""
     q = None
-    buf = [np.empty_like(rot[0, :, 0]) for _ in range(9)]
-    for j in range(rot.shape[2]):
-        e = _qexp_c(*(rot[i, :, j] for i in range(3)))
+    buf = [np.empty_like(rot[0, 0]) for _ in range(9)]
+    for j in range(rot.shape[0]):
+        e = _qexp_c(*rot[j])
         if q is None:
             q = tuple(np.array(c) for c in e)
         else:
             out = tuple(buf[4:8])
             _qmul_into(q, e, out, buf[8])
             buf[4:8], q = list(q), out
-        _qrot_c(q, tuple(u[i, :, j] for i in range(3)), buf[:3] + [buf[8]])
+        _qrot_c(q, tuple(u[j]), buf[:3] + [buf[8]])
     return q
 
 
-def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
-    """Sums of intervals of any lengths and per-sample dt (jittered stamps): the
-    intervals padded to the longest with zero rates and forces."""
+def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool, B):
+    """Sums of intervals of any lengths and per-sample dt (jittered stamps) into ``B``
+    (see :func:`preintegrate`): the intervals padded to the longest with zero rates and
+    forces."""
     S, L = len(lengths), int(lengths.max())
     T, N = w.shape[0], w.shape[1]
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -283,13 +310,14 @@ def _padded_intervals(dt, w, f, lengths, w_ie_mag: float, mean_weights: bool):
     s = np.cumsum(dtp, axis=1)                        # time since the interval's start
     seg_t = s[:, -1]
     ws = _weights(dtp, s, seg_t[:, None], mean_weights, w_ie_mag)
-    A = np.einsum("ksl,jsln->snjk", np.array(ws) * valid, u)
+    B[:, :, 3:] = np.einsum("ksl,jsln->sjkn", np.array(ws) * valid, u)
     last = (np.arange(S), lengths - 1)
-    return dcm_from_quat_components(*(c[last] for c in q)), A, seg_t, (s * dtp).sum(axis=1)
+    B[:, :, :3] = np.stack(dcm_entries_from_quat(*(c[last] for c in q)), 1).reshape(S, 3, 3, N)
+    return seg_t, (s * dtp).sum(axis=1)
 
 
 def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
-                 w_ie_mag: float, mean_weights: bool):
+                 w_ie_mag: float, mean_weights: bool, scratch: dict | None = None):
     """Attitude-independent sums of each interval.
 
     Parameters
@@ -301,32 +329,32 @@ def preintegrate(dt, w: np.ndarray, f: np.ndarray, lengths: np.ndarray,
     w_ie_mag : float, rad/s — Earth rate magnitude.
     mean_weights : also return the sums weighted by the time left in the interval, for
         the interval's mean velocity.
+    scratch : dict kept by the caller for the large arrays (see :func:`scratch_array`); B
+        is then a view into it, valid until the next call with the same dict.
 
     Returns
     -------
-    dcm_end : ndarray (S, N, 3, 3) — Q_m as a DCM (body rotation over the interval).
-    A : ndarray (S, N, 3, 3) — columns A0, Aa, Ab of each run (m/s).
-    V : ndarray (S, N, 3, 3) or None — columns V0, Va, Vb, the mean-velocity sums (m).
+    B : ndarray (S, 3, K, N), component-major: column k of each interval and run in
+        ``B[s, :, k, n]``. Columns 0-2: Q_m as a DCM (body rotation over the interval);
+        3-5: A0, Aa, Ab (m/s); 6-8 (K = 9, with ``mean_weights``): V0, Va, Vb, the
+        mean-velocity sums (m).
     seg_t : ndarray (S,) — duration of each interval, s.
     s_dt : ndarray (S,) — sum over the interval of (time since its start) x dt, s^2.
     """
     lengths = np.asarray(lengths)
-    if np.ndim(dt) == 0:
-        # uniform dt: consecutive intervals of equal length are reshaped, not copied
-        cut = np.flatnonzero(np.diff(lengths)) + 1
-        parts, k = [], 0
-        for grp in np.split(lengths, cut):
-            n = len(grp) * int(grp[0])
-            dcm, A, Ti, sd = _equal_intervals(float(dt), w[k:k + n], f[k:k + n], int(grp[0]),
-                                             w_ie_mag, mean_weights)
-            parts.append((dcm, A, np.full(len(grp), Ti), np.full(len(grp), sd)))
-            k += n
-        dcm, A, seg_t, s_dt = (p[0] if len(parts) == 1 else np.concatenate(p)
-                               for p in zip(*parts))
-    else:
-        dcm, A, seg_t, s_dt = _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights)
-    V = np.ascontiguousarray(A[..., 3:]) if mean_weights else None
-    return dcm, np.ascontiguousarray(A[..., :3]), V, seg_t, s_dt
+    B = scratch_array(scratch, "B", (len(lengths), 3, 9 if mean_weights else 6, w.shape[1]))
+    if np.ndim(dt) != 0:
+        return (B,) + _padded_intervals(dt, w, f, lengths, w_ie_mag, mean_weights, B)
+    # uniform dt: consecutive intervals of equal length are reshaped, not copied
+    seg_t, s_dt = np.empty(len(lengths)), np.empty(len(lengths))
+    k = i = 0
+    for grp in np.split(lengths, np.flatnonzero(np.diff(lengths)) + 1):
+        n, j = len(grp) * int(grp[0]), i + len(grp)
+        seg_t[i:j], s_dt[i:j] = _equal_intervals(float(dt), w[k:k + n], f[k:k + n],
+                                                 int(grp[0]), w_ie_mag, mean_weights,
+                                                 B[i:j], scratch)
+        k, i = k + n, j
+    return B, seg_t, s_dt
 
 
 def total_rotation(dt, w: np.ndarray) -> np.ndarray:

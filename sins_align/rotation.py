@@ -34,42 +34,63 @@ def skew(v: np.ndarray) -> np.ndarray:
 def so3_exp(rotvec: np.ndarray) -> np.ndarray:
     """Exact exponential map ``exp((rotvec x))`` (Rodrigues), shape (..., 3) -> (..., 3, 3).
 
-    Uses Taylor series for the coefficients below 1e-4 rad, so it is exact to double precision
+    Uses Taylor series for the coefficients below 1e-2 rad, so it is exact to double precision
     at every angle, including zero and pi.
     """
     rv = np.asarray(rotvec, dtype=float)
     if rv.size == 3:
-        return _so3_exp_one(rv)
-    x, y, z = rv[..., 0], rv[..., 1], rv[..., 2]
-    th2 = x * x + y * y + z * z
-    if th2.size and float(th2.max()) < 1e-8:       # all below 1e-4 rad: series only
-        a, b = _exp_series(th2)
-    else:
-        th = np.sqrt(th2)
-        small = th < 1e-4
-        ths = np.where(small, 1.0, th)
-        sa, sb = _exp_series(th2)
-        a = np.where(small, sa, np.sin(ths) / ths)
-        b = np.where(small, sb, (1.0 - np.cos(ths)) / (ths * ths))
-    return np.stack(_rodrigues(x, y, z, a, b), axis=-1).reshape(rv.shape[:-1] + (3, 3))
+        return np.array(so3_exp_entries(*rv.reshape(3).tolist())).reshape(rv.shape[:-1] + (3, 3))
+    entries = so3_exp_entries(rv[..., 0], rv[..., 1], rv[..., 2])
+    return np.stack(entries, axis=-1).reshape(rv.shape[:-1] + (3, 3))
 
 
-def _so3_exp_one(rv: np.ndarray) -> np.ndarray:
-    """so3_exp of a single rotation vector (shape (3,) or (1, 3)): same formulas, scalar math."""
-    x, y, z = rv.reshape(3).tolist()
+def so3_exp_entries(x, y, z) -> tuple:
+    """The nine entries, row by row, of ``exp((v x))`` for rotation vectors given as
+    component arrays ``v = (x, y, z)`` (any equal shapes, rad): the component-major form of
+    :func:`so3_exp`. Series coefficients where the angle is below 1e-2 rad, the closed
+    forms (sin, cos) only for the vectors above. A single vector (size-1 components) is
+    computed with scalar math and gives nine floats."""
+    if isinstance(x, np.ndarray) and x.size == 1:
+        x, y, z = x.item(), y.item(), z.item()
+    if isinstance(x, float):
+        th2 = x * x + y * y + z * z
+        if th2 < 1e-4:
+            a, b = _exp_series(th2)
+        else:
+            th = math.sqrt(th2)
+            a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+        return _rodrigues(x, y, z, a, b)
     th2 = x * x + y * y + z * z
-    if th2 < 1e-8:
-        a, b = _exp_series(th2)
-    else:
-        th = math.sqrt(th2)
-        a = math.sin(th) / th
-        b = (1.0 - math.cos(th)) / th2
-    return np.array(_rodrigues(x, y, z, a, b)).reshape(rv.shape[:-1] + (3, 3))
+    a, b = _exp_series(th2)
+    if th2.size and float(th2.max()) >= 1e-4:
+        big = np.flatnonzero(th2 >= 1e-4)
+        t2 = th2.reshape(-1)[big]
+        th = np.sqrt(t2)
+        a = a.reshape(-1)
+        b = b.reshape(-1)
+        a[big] = np.sin(th) / th
+        b[big] = (1.0 - np.cos(th)) / t2
+        a, b = a.reshape(th2.shape), b.reshape(th2.shape)
+    return _rodrigues(x, y, z, a, b)
 
 
 def _exp_series(th2):
-    """sin(t)/t and (1 - cos t)/t^2 from t^2 by their Taylor series (exact below 1e-4 rad)."""
-    return 1.0 - th2 / 6.0 + th2 * th2 / 120.0, 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    """sin(t)/t and (1 - cos t)/t^2 from t^2 by their Taylor series through t^6: the first
+    omitted terms (t^8/9!, t^8/10!) are below 3e-22 for t < 1e-2 rad, exact to double
+    precision there."""
+    a = th2 * (-1.0 / 5040.0)
+    a += 1.0 / 120.0
+    a *= th2
+    a -= 1.0 / 6.0
+    a *= th2
+    a += 1.0
+    b = th2 * (-1.0 / 40320.0)
+    b += 1.0 / 720.0
+    b *= th2
+    b -= 1.0 / 24.0
+    b *= th2
+    b += 0.5
+    return a, b
 
 
 def _rodrigues(x, y, z, a, b) -> tuple:
@@ -163,15 +184,20 @@ def dcm_from_quat(q: np.ndarray) -> np.ndarray:
 
 def dcm_from_quat_components(x, y, z, w) -> np.ndarray:
     """DCM of quaternions given as component arrays (normalised first): (...) -> (..., 3, 3)."""
+    return np.stack(dcm_entries_from_quat(x, y, z, w), axis=-1).reshape(np.shape(x) + (3, 3))
+
+
+def dcm_entries_from_quat(x, y, z, w) -> tuple:
+    """The nine entries, row by row, of the DCM of quaternions given as component arrays
+    (normalised first): the component-major form of :func:`dcm_from_quat_components`."""
     s = 2.0 / (x * x + y * y + z * z + w * w)
     xs, ys, zs = x * s, y * s, z * s
     wx, wy, wz = w * xs, w * ys, w * zs
     xx, xy, xz = x * xs, x * ys, x * zs
     yy, yz, zz = y * ys, y * zs, z * zs
-    return np.stack([1.0 - (yy + zz), xy - wz, xz + wy,
-                     xy + wz, 1.0 - (xx + zz), yz - wx,
-                     xz - wy, yz + wx, 1.0 - (xx + yy)],
-                    axis=-1).reshape(np.shape(x) + (3, 3))
+    return (1.0 - (yy + zz), xy - wz, xz + wy,
+            xy + wz, 1.0 - (xx + zz), yz - wx,
+            xz - wy, yz + wx, 1.0 - (xx + yy))
 
 
 def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
