@@ -385,9 +385,10 @@ class AlignmentFilter:
 
         In the loop the state is component-major, the attitude transposed:
         ``Ct[k, i, n] = C[i, k, n]`` and ``v[:, n]`` for run n, so that each product of
-        per-run 3x3 matrices is one einsum over contiguous rows of the N runs, and each
-        product with a matrix shared by all runs is one GEMM. Every array of N runs is
-        written into a reused scratch array (no page faults per update).
+        per-run 3x3 matrices is one einsum over contiguous rows of the N runs (a plain
+        matrix product for one run), and each product with a matrix shared by all runs is
+        one GEMM. Every array of N runs is written into a reused scratch array (no page
+        faults per update).
         """
         period = self._period()
         uniform = np.ndim(dt) == 0
@@ -414,11 +415,11 @@ class AlignmentFilter:
         for i, m in enumerate(lengths.tolist()):
             Ti = m * dt if uniform else float(segT[i])
             dti = dt if uniform else float(dt[ends[i] - 1])
-            np.einsum("jin,jkn->kin", Ct, B[i], out=P)
+            _rows_times(Ct, B[i], P)
             E = self._earth_rot(m, dt) if uniform else so3_exp(-self.w_ie * Ti)
             np.matmul(E, P[:3], out=X)                       # (E C0 Qm)^T
             if track_B:
-                np.einsum("jin,jkn->kin", Bt, B[i, :, :3], out=BX)
+                _rows_times(Bt, B[i, :, :3], BX)
                 Bt, BX = BX, Bt
             if self.fine:
                 vs += v * Ti
@@ -445,7 +446,7 @@ class AlignmentFilter:
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
             ent = so3_exp_entries(x[0], x[1], x[2])           # floats when N = 1
             R = np.array(ent) if n == 1 else np.stack(ent, out=scratch_array(sc, "R", (9, n)))
-            np.einsum("rjn,kjn->krn", R.reshape(3, 3, n), X, out=Ct)
+            _times_rows(R.reshape(3, 3, n), X, Ct)
             v -= x[3:]
             self.t_acc = 0.0
             if self.on_update is not None and offset is not None:
@@ -1217,6 +1218,25 @@ class Aligner:
             "fine_velocity_noise_mps": None if r is None else r[0].tolist(),
             "nis": self.nis,
         }
+
+
+def _rows_times(Ct, M, out):
+    """``out[k, i, n] = sum_j Ct[j, i, n] M[j, k, n]``: C M for each run n, component-major
+    with C transposed (``Ct[j, i, n] = C[i, j, n]``), so out is (C M) transposed. One einsum
+    over the runs; for a single run a plain matrix product (half the call overhead)."""
+    if out.shape[-1] == 1:
+        np.matmul(M[..., 0].T, Ct[..., 0], out=out[..., 0])
+    else:
+        np.einsum("jin,jkn->kin", Ct, M, out=out)
+
+
+def _times_rows(R, Xt, out):
+    """``out[k, r, n] = sum_j R[r, j, n] Xt[k, j, n]``: R X for each run n, with X and the
+    result transposed as in :func:`_rows_times`."""
+    if out.shape[-1] == 1:
+        np.matmul(Xt[..., 0], R[..., 0].T, out=out[..., 0])
+    else:
+        np.einsum("rjn,kjn->krn", R, Xt, out=out)
 
 
 def _part(dt, a: int, b: int):
