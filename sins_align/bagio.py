@@ -677,8 +677,11 @@ class McapTopicReader:
         o = o[order].astype(np.int64)
         tag = np.concatenate(tags)[order]
         log = np.concatenate(logs)[order]
-        # a record head at every byte of the chunk (a view), picked at the indexed offsets
-        head = np.ndarray((usize - 30,), _MSG_HEAD, raw, 0, (1,))[o]
+        # each field of a message record head read at the indexed offsets, through a view
+        # of that field's type at every byte of the chunk (4 plain gathers: half the time
+        # of one gather of the 31-byte record head)
+        head = {name: np.ndarray((usize - 30,), _MSG_HEAD[name], raw, _MSG_HEAD.fields[name][1],
+                                 (1,))[o] for name in _MSG_HEAD.names}
         length = head["len"]
         if not ((head["op"] == _OP_MESSAGE).all() and (head["channel"] == tag).all()
                 and (head["log"] == log).all() and (length >= 22).all()
