@@ -131,7 +131,8 @@ def riccati_steps(P: np.ndarray, Phi: np.ndarray, Qd: np.ndarray, H: np.ndarray,
     that starts the next chunk is taken sequentially. The powers of M grow apart at the
     rate of the fastest-converging mode, so a chunk is kept short; every prior is then
     checked against one exact step from the posterior before it, and the chunk is halved
-    until they agree to ``tol`` (relative to sqrt(P_ii P_jj)). The posteriors, gains and
+    until they agree to ``tol`` (relative to sqrt(P_ii P_jj)); below 4 steps a chunk (or
+    for fewer than 4 steps) it is the plain recursion. The posteriors, gains and
     innovation covariances then come from the priors by the same Joseph update, batched.
 
     Parameters
@@ -148,28 +149,29 @@ def riccati_steps(P: np.ndarray, Phi: np.ndarray, Qd: np.ndarray, H: np.ndarray,
     S : ndarray (n, m, m) — innovation covariance of each step.
     """
     nx = P.shape[-1]
-    eye, zero = np.eye(nx), np.zeros((nx, nx))
-    PhiIT = np.linalg.inv(Phi).T
-    T = np.block([[Phi, Qd @ PhiIT], [zero, PhiIT]])
-    U = np.block([[eye, zero], [H.T @ inv3(R) @ H if H.shape[0] == 3 else
-                                H.T @ np.linalg.inv(R) @ H, eye]])
-    M = U @ T
+    T = M = None
     while True:
         J = max(1, min(chunk, n))
-        if J == 1:                       # the plain recursion
+        if J < 4:                        # the plain recursion
             out = []
             for _ in range(n):
                 P = Phi @ P @ Phi.T + Qd
                 out.append(joseph_update(P, H, R))
                 P = out[-1][0]
             return tuple(np.array(x) for x in zip(*out))
+        if T is None:
+            eye, zero = np.eye(nx), np.zeros((nx, nx))
+            PhiIT = np.linalg.inv(Phi).T
+            T = np.block([[Phi, Qd @ PhiIT], [zero, PhiIT]])
+            info = H.T @ (inv3(R) if H.shape[0] == 3 else np.linalg.inv(R)) @ H
+            M = np.block([[eye, zero], [info, eye]]) @ T
         pw = np.empty((J, 2 * nx, 2 * nx))
         pw[0] = T
         for j in range(1, J):
             pw[j] = pw[j - 1] @ M
         prior = np.empty((n, nx, nx))
         Z = np.empty((2 * nx, nx))
-        Z[nx:] = eye
+        Z[nx:] = np.eye(nx)
         Pk = P
         try:
             for k in range(0, n, J):
