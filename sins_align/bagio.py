@@ -699,7 +699,9 @@ class McapTopicReader:
             gaps.append((int(ends[-1]), usize))
         for a, b in gaps:
             _check_gap(raw, a, b, ids)
-        sel = np.isin(tag, np.fromiter(ids, np.uint16, len(ids)))
+        wanted = np.zeros(1 << 16, dtype=bool)             # channel ids are uint16
+        wanted[np.fromiter(ids, np.int64, len(ids))] = True
+        sel = wanted[tag]                                    # (np.isin: 20x slower here)
         so, slog, slen = o[sel], log[sel], length[sel]
         if not ((slog >= start) & (slog <= end)).all() or (len(slog) and
                                                          slog.max() > _I64_MAX):

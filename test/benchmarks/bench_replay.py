@@ -12,8 +12,9 @@ prints each figure beside the target of 500,000 Imu messages/s:
 
 - end to end, summary only (the block path: MCAP parsed with numpy, bulk decoding, the
   estimator fed blocks of thousands of samples), cold (as a fresh process: the gain
-  schedule cache cleared) and warm, and the same forced onto the per-sample path
-  (before); with ``--csv`` (block path cut at the 10 Hz rows) and ``--output`` (the node's
+  schedule cache cleared) and warm, cold on the same data in an uncompressed bag (what
+  ``ros2 bag record`` writes by default; the result must be identical), and the same
+  forced onto the per-sample path (before); with ``--csv`` (block path cut at the 10 Hz rows) and ``--output`` (the node's
   per-sample path) for reference;
 - decode only, bag on disk -> (sec, nanosec, gyro, accel) arrays of the Imu topic: rosbags'
   reader + its deserializer (before), rosbags' reader + the bulk decoder, and the numpy MCAP
@@ -101,6 +102,21 @@ def main() -> int:
         run_replay()                                   # imports, message types
         t_e2e_cold = best_of(R, run_replay_cold)
         t_e2e = best_of(R, run_replay)                 # gain schedule cached (next bag)
+        # the same data uncompressed: what `ros2 bag record` writes by default
+        plain = d / "static_nav_plain"
+        simulate.main(["--latitude", "34", "--duration", str(args.duration), "--rate", "100",
+                       "--seed", "1", str(plain)])
+
+        def run_plain_cold():
+            estimator._SCHEDULE_CACHE.clear()
+            k[0] += 1
+            js = d / f"plain{k[0]}.json"
+            assert replay.main([str(plain), "--latitude", "34", "--summary-json", str(js),
+                                "--quiet"]) == 0
+            assert json.loads(js.read_text())["final"] == summary0["final"]
+
+        summary0 = run_replay()
+        t_plain_cold = best_of(R, run_plain_cold)
         t_e2e_before = best_of(1, run_per_sample)
         t_csv = best_of(1, lambda: run_replay(["--csv", "{d}/a{i}.csv"]))
         t_out = best_of(1, lambda: run_replay(["--output", "{d}/out{i}"]))
@@ -202,6 +218,7 @@ def main() -> int:
     print(f"  replay end to end, bag -> summary JSON (Imu msg/s; best of {R}):")
     print(f"    summary only, block path, cold:     {rate(t_e2e_cold)}")
     print(f"    same, gain schedule cached (warm):  {rate(t_e2e)}")
+    print(f"    cold, uncompressed mcap (the same): {rate(t_plain_cold)}")
     print(f"    summary only, per-sample (before):  {rate(t_e2e_before)}")
     print(f"    with --csv (block path, 10 Hz cuts):{rate(t_csv)}")
     print(f"    with --output (node's per-sample):  {rate(t_out)}")
