@@ -697,16 +697,28 @@ class AlignmentFilter:
     def _innovate(self, z, K, Sinv, out=None):
         """The correction ``x = K z`` of an update and its NIS bookkeeping (re-inflation
         included), component-major: z (3, N), returns x (6, N) (in ``out`` if given)."""
-        if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
-            x = np.matmul(K[0], z, out=out)
-            r = _THIRDS @ ((Sinv[0] @ z) * z)
-        else:
-            x = np.einsum("nij,jn->in", K, z, out=out)
-            r = nis(z.T, Sinv) / 3.0
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
-        self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
         c = self.config
+        if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
+            x = np.matmul(K[0], z, out=out)
+            if z.shape[1] == 1:             # one run (the node, replay): scalar arithmetic
+                z0, z1, z2 = z.ravel().tolist()
+                (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = Sinv[0].tolist()
+                r = (z0 * (s00 * z0 + s01 * z1 + s02 * z2)
+                     + z1 * (s10 * z0 + s11 * z1 + s12 * z2)
+                     + z2 * (s20 * z0 + s21 * z1 + s22 * z2)) / 3.0
+                m = float(self.nis_mean[0])
+                m += a * (r - m)
+                self.nis_mean = np.array([m])
+                if m <= c.reinflate_nis:
+                    return x
+            else:
+                r = _THIRDS @ ((Sinv[0] @ z) * z)
+                self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
+        else:
+            x = np.einsum("nij,jn->in", K, z, out=out)
+            self.nis_mean = self.nis_mean + a * (nis(z.T, Sinv) / 3.0 - self.nis_mean)
         if self.nis_mean.max() > c.reinflate_nis:
             bad = (self.nis_mean > c.reinflate_nis) & (
                 self.t_int - self.last_reinflate >= c.reinflate_holdoff - 1e-6)
