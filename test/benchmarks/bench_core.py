@@ -9,7 +9,8 @@ A 100 Hz simulated navigation-grade data set (static, from [89, 89, 179] deg) th
   array. 'cold' is the first run of a configuration (it builds the data-independent gain
   schedule), 'warm' a later run of the same configuration (next bag, next batch); best of
   --repeat runs (wall time; this 2-core machine is shared and its speed drifts by +-30 %);
-- Monte Carlo: AlignmentFilter.run_fast vectorised over --runs runs (sample-runs/s).
+- AlignmentFilter.run_fast vectorised over --runs runs with the default pipeline (per-run
+  gains after the backtrack; the Monte Carlo target, one shared gain, is bench_montecarlo.py).
 """
 from __future__ import annotations
 
@@ -25,7 +26,6 @@ from sins_align.sim import simulate
 from sins_align.specs import DEG
 
 TARGET_CORE = 1_000_000      # issue 5: samples/s, constant model
-TARGET_MC = 20_000_000       # issue 5: sample-runs/s
 ERR = dcm_from_rpy(np.array([89.0, 89.0, 179.0]) * DEG)
 
 
@@ -89,7 +89,9 @@ def main(argv=None):
     C0s = np.stack([x.C0 @ ERR.T for x in sims])
     cfg = AlignConfig(latitude_deg=34.0)
     rate = rate_of(lambda: AlignmentFilter(cfg, C0s).run_fast(0.01, W, F), W.shape[0] * m)
-    row("constant", f"run_fast x{m} runs (sample-runs/s)", rate, f"{TARGET_MC:,}")
+    # the default pipeline: after the backtrack each run has its own measured R, so its own
+    # gain; the issue's Monte Carlo target is for one shared gain (bench_montecarlo.py)
+    row("constant", f"run_fast x{m} runs, default pipeline", rate, "(sample-runs/s)")
 
 
 if __name__ == "__main__":

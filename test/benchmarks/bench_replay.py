@@ -2,7 +2,7 @@
 
 Script, not a test: prints figures, never fails on a slow machine. Run::
 
-    .venv/bin/python test/benchmarks/bench_replay.py [--duration 600] [--repeat 3]
+    .venv/bin/python test/benchmarks/bench_replay.py [--duration 600] [--repeat 5]
 
 It simulates a static navigation-grade 100 Hz bag (``sins_align.simulate``, mcap + zstd, the
 Imu topic interleaved with the truth topic) into a temporary directory, then times
@@ -22,13 +22,16 @@ prints each figure beside the target of 500,000 Imu messages/s:
 - the pieces of the end-to-end time: opening the bag with rosbags (metadata, types), and the
   estimator alone on the decoded arrays, fed in blocks and one sample at a time.
 
-Measured here (x86_64, 2 cores, CPython 3.11, numpy 2.4, best of 3), 600 s bag (the
-default): summary only ~22,000 msg/s per-sample (before) -> ~450,000 block path cold (a
-fresh process: the gain schedule is built) and ~590,000 warm (schedule cached: the next
-bag of the same configuration); decode only ~79,000 (rosbags) -> ~1,230,000 msg/s (numpy
-MCAP, 12 ms of it opening the bag with rosbags); the estimator alone in blocks ~690,000
-samples/s cold. --csv at 100 Hz ~27,000 msg/s (blocks of 10 samples between rows: the
-estimator's per-sample path), --output ~10,000 msg/s (per-sample by design).
+Measured here (x86_64, 2 cores, CPython 3.11, numpy 2.4, best of 5; the machine's speed
+drifts by up to 1.7x, the lower figures are from slow moments), 600 s bag (the default):
+summary only 13,000-20,000 msg/s per-sample (before) -> 425,000-491,000 block path cold (a
+fresh process: the gain schedule is built; 363,000 in a slow moment), 500,000-608,000 warm
+(schedule cached: the next bag of the same configuration), and 556,000-591,000 cold from
+the uncompressed copy (no zstd to undo); decode only 42,000-53,000 (rosbags) ->
+1,080,000-1,600,000 msg/s (numpy MCAP, 7-9 ms of it opening the bag with rosbags); the
+estimator alone in blocks 660,000-940,000 samples/s cold. --csv at 100 Hz 16,000-28,000
+msg/s (blocks of 10 samples between rows: the estimator's per-sample path), --output
+6,000-9,500 msg/s (per-sample by design).
 """
 from __future__ import annotations
 
@@ -65,7 +68,7 @@ def best_of(repeat: int, fn) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=600.0, help="bag length, s (100 Hz)")
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     R = args.repeat
 
@@ -222,7 +225,7 @@ def main() -> int:
     print(f"    summary only, per-sample (before):  {rate(t_e2e_before)}")
     print(f"    with --csv (block path, 10 Hz cuts):{rate(t_csv)}")
     print(f"    with --output (node's per-sample):  {rate(t_out)}")
-    print(f"  decode only, bag -> arrays (sec, nanosec, gyro, accel), identical arrays:")
+    print("  decode only, bag -> arrays (sec, nanosec, gyro, accel), identical arrays:")
     print(f"    rosbags reader + deserializer:      {rate(t_dec['rosbags'])}")
     print(f"    rosbags reader + bulk decode:       {rate(t_dec['bulk'])}")
     print(f"    numpy MCAP reader + bulk decode:    {rate(t_dec['numpy-mcap'])}")
