@@ -412,21 +412,28 @@ class AlignmentFilter:
         if track_B:
             Bt, BX = (scratch_array(sc, name, (3, 3, n)) for name in ("Bt", "BX"))
             Bt[...] = self._B.transpose(2, 1, 0)
+        P_Qm, P_A = P[:3], P[3:6].reshape(9, n)
+        P_V = P[6:9].reshape(9, n) if self.fine else None
+        earth = {}                                   # uniform: E and g T of each length m
         for i, m in enumerate(lengths.tolist()):
-            Ti = m * dt if uniform else float(segT[i])
-            dti = dt if uniform else float(dt[ends[i] - 1])
+            if uniform:
+                Ti, dti = m * dt, dt
+                E, gT = earth.get(m) or earth.setdefault(
+                    m, (self._earth_rot(m, dt), self._g_col * Ti))
+            else:
+                Ti, dti = float(segT[i]), float(dt[ends[i] - 1])
+                E, gT = so3_exp(-self.w_ie * Ti), self._g_col * Ti
             _rows_times(Ct, B[i], P)
-            E = self._earth_rot(m, dt) if uniform else so3_exp(-self.w_ie * Ti)
-            np.matmul(E, P[:3], out=X)                       # (E C0 Qm)^T
+            np.matmul(E, P_Qm, out=X)                        # (E C0 Qm)^T
             if track_B:
                 _rows_times(Bt, B[i, :, :3], BX)
                 Bt, BX = BX, Bt
             if self.fine:
                 vs += v * Ti
-                vs += np.matmul(G, P[6:9].reshape(9, n), out=inc)
+                vs += np.matmul(G, P_V, out=inc)
                 vs += self._g_col * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i]))
-            v += np.matmul(G, P[3:6].reshape(9, n), out=inc)
-            v += self._g_col * Ti
+            v += np.matmul(G, P_A, out=inc)
+            v += gT
             self.t_int += Ti
             self.t_acc += Ti
             jumps = (lambda: self._disc_m(m, dt)) if uniform else (
@@ -444,8 +451,10 @@ class AlignmentFilter:
                 Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc, jumps)
                 self._innovate(v, Kg, Sinv, out=x)
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
-            ent = so3_exp_entries(x[0], x[1], x[2])           # floats when N = 1
-            R = np.array(ent) if n == 1 else np.stack(ent, out=scratch_array(sc, "R", (9, n)))
+            if n == 1:                                        # nine floats
+                R = np.array(so3_exp_entries(*x[:3, 0].tolist()))
+            else:
+                R = np.stack(so3_exp_entries(x[0], x[1], x[2]), out=scratch_array(sc, "R", (9, n)))
             _times_rows(R.reshape(3, 3, n), X, Ct)
             v -= x[3:]
             self.t_acc = 0.0
