@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from .rotation import dcm_entries_from_quat
+from .rotation import dcm_entries_from_quat, horner
 
 
 def _qmul(a, b):
@@ -65,13 +65,7 @@ def _qexp_c(ax, ay, az):
     top = float(th2.max()) if th2.size else 0.0
     if top < 1e-4:
         n = next(n for n in range(1, 5) if top ** n * abs(_COS_HALF[n]) < 1e-20)
-        k, c = (np.full_like(th2, v[n - 1]) if n == 1 else th2 * v[n - 1]
-                for v in (_SIN_HALF, _COS_HALF))
-        for v, p in ((_SIN_HALF, k), (_COS_HALF, c)):
-            for i in range(n - 2, -1, -1):
-                p += v[i]
-                if i:
-                    p *= th2
+        k, c = horner(th2, _SIN_HALF[:n]), horner(th2, _COS_HALF[:n])
     else:
         th = np.sqrt(th2)
         small = th < 1e-4

@@ -78,19 +78,21 @@ def _exp_series(th2):
     """sin(t)/t and (1 - cos t)/t^2 from t^2 by their Taylor series through t^6: the first
     omitted terms (t^8/9!, t^8/10!) are below 3e-22 for t < 1e-2 rad, exact to double
     precision there."""
-    a = th2 * (-1.0 / 5040.0)
-    a += 1.0 / 120.0
-    a *= th2
-    a -= 1.0 / 6.0
-    a *= th2
-    a += 1.0
-    b = th2 * (-1.0 / 40320.0)
-    b += 1.0 / 720.0
-    b *= th2
-    b -= 1.0 / 24.0
-    b *= th2
-    b += 0.5
-    return a, b
+    return (horner(th2, (1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0)),
+            horner(th2, (0.5, -1.0 / 24.0, 1.0 / 720.0, -1.0 / 40320.0)))
+
+
+def horner(x, coefs):
+    """``sum_i coefs[i] x^i`` (lowest order first) by Horner's rule, into new storage of
+    x's shape (x a float or an array)."""
+    if len(coefs) == 1:
+        return np.full_like(x, coefs[0]) if isinstance(x, np.ndarray) else float(coefs[0])
+    r = x * coefs[-1]
+    for c in coefs[-2:0:-1]:
+        r += c
+        r *= x
+    r += coefs[0]
+    return r
 
 
 def _rodrigues(x, y, z, a, b) -> tuple:
