@@ -23,15 +23,14 @@ prints each figure beside the target of 500,000 Imu messages/s:
   estimator alone on the decoded arrays, fed in blocks and one sample at a time.
 
 Measured here (x86_64, 2 cores, CPython 3.11, numpy 2.4, best of 5; the machine's speed
-drifts by up to 1.7x, the lower figures are from slow moments), 600 s bag (the default):
-summary only 13,000-20,000 msg/s per-sample (before) -> 425,000-491,000 block path cold (a
-fresh process: the gain schedule is built; 363,000 in a slow moment), 500,000-608,000 warm
-(schedule cached: the next bag of the same configuration), and 556,000-591,000 cold from
-the uncompressed copy (no zstd to undo); decode only 42,000-53,000 (rosbags) ->
-1,080,000-1,600,000 msg/s (numpy MCAP, 7-9 ms of it opening the bag with rosbags); the
-estimator alone in blocks 660,000-940,000 samples/s cold. --csv at 100 Hz 16,000-28,000
-msg/s (blocks of 10 samples between rows: the estimator's per-sample path), --output
-6,000-9,500 msg/s (per-sample by design).
+drifts by up to 1.7x), 600 s bag (the default), in a quiet moment: summary only ~22,000
+msg/s per-sample (before) -> ~565,000 block path cold (a fresh process: the gain schedule
+is built) and ~628,000 warm (schedule cached: the next bag of the same configuration),
+~633,000 cold from the uncompressed copy (no zstd to undo); decode only ~53,000 (rosbags)
+-> ~1,740,000 msg/s (numpy MCAP, 7 ms of it opening the bag with rosbags); the estimator
+alone in blocks ~990,000 samples/s cold; --csv at 100 Hz ~24,000 msg/s (blocks of 10
+samples between rows: the estimator's per-sample path), --output ~10,000 msg/s
+(per-sample by design). In slow moments the block path drops to 363,000-491,000 cold.
 """
 from __future__ import annotations
 
