@@ -438,17 +438,16 @@ class AlignmentFilter:
             self.t_acc += Ti
             jumps = (lambda: self._disc_m(m, dt)) if uniform else (
                 lambda: self._disc_var(_part(dt, ends[i] - m, ends[i])))
-            if self.t_acc < period - 0.5 * dti:     # partial interval: no update yet
+            Hu, scale = self._update_due(self.t_acc, period, dti, H, uniform)
+            if Hu is None:                          # partial interval: no update yet
                 self._cov_block(m, dt, None, 0.0, jumps)
                 Ct, X = X, Ct
                 continue
+            Kg, Sinv = self._cov_block(m, dt, Hu, scale, jumps)
             if self.fine:
-                Kg, Sinv = self._cov_block(m, dt, self._averaged_H(self.t_acc, uniform), 1.0,
-                                           jumps)
                 self._innovate(vs / self.t_acc, Kg, Sinv, out=x)
                 vs[...] = 0.0
             else:
-                Kg, Sinv = self._cov_block(m, dt, H, 0.01 / self.t_acc, jumps)
                 self._innovate(v, Kg, Sinv, out=x)
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
             if n == 1:                                        # nine floats
@@ -466,6 +465,17 @@ class AlignmentFilter:
         self.v_sum = np.ascontiguousarray(vs.T)
         if track_B:
             self._B = np.ascontiguousarray(Bt.transpose(2, 1, 0))
+
+    def _update_due(self, t_acc: float, period: float, dt: float, H, cache: bool = True):
+        """(H, R scale) of the fast path's update after ``t_acc`` s of the current interval
+        (last sample interval ``dt``), or (None, 0.0) when none is due yet: the coarse
+        pass's instantaneous velocity (``H``, R scaled to the interval), the fine pass's
+        mean velocity over it."""
+        if t_acc < period - 0.5 * dt:
+            return None, 0.0
+        if self.fine:
+            return self._averaged_H(t_acc, cache), 1.0
+        return H, 0.01 / t_acc
 
     def _averaged_H(self, period: float, cache: bool):
         """H of the fine pass's mean-velocity measurement over ``period`` s (constant model)."""
@@ -496,13 +506,8 @@ class AlignmentFilter:
         plan = []
         for m in lengths.tolist()[:most]:
             t_acc += m * dt
-            if t_acc < period - 0.5 * dt:
-                plan.append((m, None, 0.0))
-            elif self.fine:
-                plan.append((m, self._averaged_H(t_acc, True), 1.0))
-                t_acc = 0.0
-            else:
-                plan.append((m, H0, 0.01 / t_acc))
+            plan.append((m, *self._update_due(t_acc, period, dt, H0)))
+            if plan[-1][1] is not None:
                 t_acc = 0.0
         keys = [(m, dt, sc, None if H is None else H.tobytes()) for m, H, sc in plan]
         P, S, i = self.P[0], self.S[0], 0

@@ -102,3 +102,24 @@ def test_schedule_cache_with_uniform_and_jittered_blocks_mixed():
         fast.run_fast(dts[2000:3503], s.gyro[2000:3503], s.accel[2000:3503])
         fast.run_fast(0.01, s.gyro[3503:], s.accel[3503:])
         assert_same(ref, fast)
+
+
+@pytest.mark.parametrize("chunk", [None, 16384, 777])
+def test_cold_run_takes_every_update_from_the_batched_schedule(monkeypatch, chunk):
+    """With uniform stamps, the schedule computed ahead for each block
+    (_prefetch_schedule) holds every update the interval loop asks for: no update is
+    computed step by step, in one call or in blocks cut anywhere (as replay feeds them)."""
+    from sins_align import estimator
+    s = simulate(200, 100, 34.0, rpy_deg=(1, -2, 40), seed=4)
+    C0 = (s.C0 @ dcm_from_rpy(np.array([89, 89, 179]) * DEG).T)[None]
+    estimator._SCHEDULE_CACHE.clear()
+    calls = []
+    gain = AlignmentFilter._gain
+    monkeypatch.setattr(AlignmentFilter, "_gain",
+                        lambda self, *a, **k: calls.append(1) or gain(self, *a, **k))
+    fl = AlignmentFilter(AlignConfig(latitude_deg=34.0), C0)
+    step = len(s.t) if chunk is None else chunk
+    for k in range(0, len(s.t), step):
+        fl.run_fast(0.01, s.gyro[k:k + step], s.accel[k:k + step])
+    assert fl.stage == "fine" and fl.updates > 100 and fl.reinflations[0] == 0
+    assert calls == []
