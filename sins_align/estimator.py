@@ -461,8 +461,8 @@ class AlignmentFilter:
                 self.C, self.v = Ct.transpose(2, 1, 0).copy(), v.T.copy()   # the state now
                 self.on_update(offset + ends[i] - 1)
         self.C = np.ascontiguousarray(Ct.transpose(2, 1, 0))
-        self.v = np.ascontiguousarray(v.T)
-        self.v_sum = np.ascontiguousarray(vs.T)
+        self.v = v.T.copy()              # copies: v and vs are scratch, reused next call
+        self.v_sum = vs.T.copy()
         if track_B:
             self._B = np.ascontiguousarray(Bt.transpose(2, 1, 0))
 
@@ -494,13 +494,18 @@ class AlignmentFilter:
         steps (same length, H and R) is computed at once: the covariance and gain by
         :func:`kalman.riccati_steps`, the bias sensitivity S by :func:`kalman.affine_scan`,
         the NIS covariance batched. This replaces about 30 us of Python and numpy calls per
-        step; the values are those of the step-by-step recursion to rounding (relative
-        1e-9 at worst, checked inside riccati_steps). At most ``most`` steps a call: the
-        loop computes any others step by step, as before.
+        step; the values agree with the step-by-step recursion to about 1e-9 (relative to
+        sqrt(P_ii P_jj), see riccati_steps; the attitude to about 1e-12 rad). At most
+        ``most`` steps a call: the loop computes any others step by step, as before.
         """
         node = self._node if self._node is not None else self._schedule_root()
         if node is None:
             return
+        global _SCHEDULE_SIZE
+        if _SCHEDULE_SIZE + min(len(lengths), most) > _SCHEDULE_CACHE_MAX:
+            _SCHEDULE_CACHE.clear()         # before the walk, and a root the loop will find
+            _SCHEDULE_SIZE = 0
+            node = self._node if self._node is not None else self._schedule_root()
         period, t_acc = self._period(), self.t_acc
         H0 = measurement_matrix("constant")
         plan = []
@@ -517,10 +522,6 @@ class AlignmentFilter:
                 break
             P, S, node = hit[0][0], hit[1][0], hit[4]
             i += 1
-        global _SCHEDULE_SIZE
-        if _SCHEDULE_SIZE + len(keys) - i > _SCHEDULE_CACHE_MAX:
-            _SCHEDULE_CACHE.clear()
-            _SCHEDULE_SIZE = 0
         while i < len(keys):
             j = i + 1
             while j < len(keys) and keys[j] == keys[i]:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from sins_align.estimator import REJECT_REASONS, Aligner, AlignConfig, AlignmentFilter
+from sins_align.kalman import nis
 from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy
 from sins_align.sim import simulate
 from sins_align.specs import DEG, DPH, UG, limit_error
@@ -345,5 +346,7 @@ def test_one_run_nis_bookkeeping_equals_the_stacked_one():
         x2 = two._innovate(np.repeat(z, 2, axis=1), K, Sinv)
         assert np.allclose(x1[:, 0], x2[:, 0], rtol=1e-14, atol=0)
         assert one.nis_mean[0] == pytest.approx(two.nis_mean[0], rel=1e-12)
+        if step == 0:                              # the first average is the NIS itself
+            assert one.nis_mean[0] == pytest.approx(float(nis(z.T, Sinv)[0]) / 3.0, rel=1e-12)
         assert one.reinflations[0] == two.reinflations[0]
     assert one.reinflations[0] >= 1            # the misfit did re-inflate both

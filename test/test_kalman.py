@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from sins_align.estimator import AlignConfig, AlignmentFilter
+from sins_align import kalman
 from sins_align.kalman import affine_scan, inv3, joseph_update, riccati_steps
 from sins_align.models import averaged_measurement_matrix, measurement_matrix
 
@@ -17,9 +18,10 @@ def plain(P, Phi, Qd, H, R, n):
     return [np.array(x) for x in zip(*out)]
 
 
-def alignment_case(fine: bool, r_std: float, m: int = 10, dt: float = 0.01):
+def alignment_case(fine: bool, r_std: float, m: int = 10, dt: float = 0.01,
+                   grade: str = "navigation"):
     """(P0, Phi, Qd, H, R) of the package's coarse or fine pass (constant model, 34 deg)."""
-    cfg = AlignConfig(latitude_deg=34.0)
+    cfg = AlignConfig(latitude_deg=34.0, specs=grade)
     fl = AlignmentFilter(cfg, np.eye(3)[None])
     if fine:
         fl._start_pass(np.eye(3)[None], True, cfg.fine_initial_std_deg, np.eye(3)[None] * r_std ** 2)
@@ -50,6 +52,29 @@ def test_riccati_steps_equal_the_plain_recursion(fine, r_std, m, n):
     assert np.max(np.abs(P2 - P1) / scale) < 1e-9
     assert np.max(np.abs(K2 - K1)) < 1e-9 * np.abs(K1).max()
     assert np.max(np.abs(S2 - S1) / np.abs(S1).max(axis=(1, 2))[:, None, None]) < 1e-9
+
+
+@pytest.mark.parametrize("grade,fine,r_std,m", [
+    ("tactical", True, 1e-4, 100),      # fine pass: chunks of 16 and 8 fail, 4 pass
+    ("consumer", False, 0.0, 200),      # coarse updates every 2 s, MEMS grade: 8 pass
+])
+def test_riccati_steps_after_shorter_chunks_equal_the_plain_recursion(monkeypatch, grade, fine,
+                                                                     r_std, m):
+    """The path the tactical and consumer grades take: the first chunk fails the check at 16
+    steps, a shorter chunk passes, and the whole run still agrees with the plain recursion."""
+    seen = []
+    check = kalman._prior_error
+    monkeypatch.setattr(kalman, "_prior_error",
+                        lambda P0, prior, *a, **k: seen.append(len(prior)) or check(P0, prior,
+                                                                                    *a, **k))
+    P0, Phi, Qd, H, R = alignment_case(fine, r_std, m, grade=grade)
+    n = 200
+    P1, K1, _ = plain(P0, Phi, Qd, H, R, n)
+    P2, K2, _ = riccati_steps(P0, Phi, Qd, H, R, n)
+    assert seen[-1] == n and 4 <= seen[-2] < 16, seen      # shortened, then checked whole
+    scale = np.sqrt(np.einsum("kii,kjj->kij", P1, P1))
+    assert np.max(np.abs(P2 - P1) / scale) < 1e-9
+    assert np.max(np.abs(K2 - K1)) < 1e-9 * np.abs(K1).max()
 
 
 def test_riccati_chunk_check_catches_a_bad_chunk():
