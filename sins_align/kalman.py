@@ -18,34 +18,32 @@ def inv3(S: np.ndarray) -> np.ndarray:
     """Inverse of 3x3 matrices (..., 3, 3) by the adjugate: a single one (shape (3, 3) or
     (1, 3, 3)) in scalar arithmetic, a stack as whole-array arithmetic on its nine entries
     (LAPACK costs about 0.6 us per 3x3 matrix, mostly per-matrix overhead)."""
-    if S.size != 9:
-        return _inv3_stack(S)
-    (a, b, c), (d, e, f), (g, h, i) = S.reshape(3, 3).tolist()
-    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * A + b * B + c * C
-    if det == 0.0:
-        return np.linalg.inv(S)          # raises LinAlgError like numpy would
-    r = 1.0 / det
-    out = np.array([[A * r, (c * h - b * i) * r, (b * f - c * e) * r],
-                    [B * r, (a * i - c * g) * r, (c * d - a * f) * r],
-                    [C * r, (b * g - a * h) * r, (a * e - b * d) * r]])
-    return out.reshape(S.shape)
-
-
-def _inv3_stack(S: np.ndarray) -> np.ndarray:
-    (a, b, c), (d, e, f), (g, h, i) = np.moveaxis(S, (-2, -1), (0, 1))
-    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * A + b * B + c * C
+    if S.size == 9:
+        det, ((a, b, c), (d, e, f), (g, h, i)) = _adjugate3(*S.reshape(3, 3).tolist())
+        if det == 0.0:
+            return np.linalg.inv(S)      # raises LinAlgError like numpy would
+        r = 1.0 / det
+        return np.array([[a * r, b * r, c * r], [d * r, e * r, f * r],
+                         [g * r, h * r, i * r]]).reshape(S.shape)
+    det, adj = _adjugate3(*np.moveaxis(S, (-2, -1), (0, 1)))
     if not np.all(det != 0.0):
-        return np.linalg.inv(S)          # raises LinAlgError like numpy would
+        return np.linalg.inv(S)
     r = 1.0 / det
     out = np.empty(S.shape)
-    for row, vals in enumerate(((A, c * h - b * i, b * f - c * e),
-                                (B, a * i - c * g, c * d - a * f),
-                                (C, b * g - a * h, a * e - b * d))):
-        for col, v in enumerate(vals):
-            np.multiply(v, r, out=out[..., row, col])
+    for i, row in enumerate(adj):
+        for j, v in enumerate(row):
+            np.multiply(v, r, out=out[..., i, j])
     return out
+
+
+def _adjugate3(r0, r1, r2):
+    """Determinant and adjugate (rows) of a 3x3 matrix given by its rows; the entries may
+    be floats or equal-shape arrays."""
+    (a, b, c), (d, e, f), (g, h, i) = r0, r1, r2
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+    return a * A + b * B + c * C, ((A, c * h - b * i, b * f - c * e),
+                                   (B, a * i - c * g, c * d - a * f),
+                                   (C, b * g - a * h, a * e - b * d))
 
 
 def discretize(F: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
