@@ -104,9 +104,17 @@ class AlignConfig:
     aligned_min_level_std_deg, aligned_min_heading_std_deg : ... or below these absolute values.
     heading_max_limit_std_deg : heading counts as observable when its limit std is below this.
     disturbance_nis : mean NIS per dof above which the platform counts as disturbed (moving).
-    reinflate_nis : mean NIS per dof above which the covariance is re-inflated to its initial
-        value (the error is far larger than the filter believes: a large-angle transient).
+    reinflate_nis : coarse pass: mean NIS per dof above which the covariance is re-inflated to
+        its initial value (the error is far larger than the filter believes: a large-angle
+        transient).
     reinflate_holdoff : s between two re-inflations of the same run.
+    gate_nis : fine pass: an update whose NIS (3 dof, chi-square when the model fits)
+        exceeds this is not applied (a shove, a door slam: the model cannot explain it);
+        the state and covariance coast over it. Default: the 0.999 chi-square quantile.
+    reinflate_gated_time : fine pass: s of consecutive gated updates after which the
+        attitude is taken to have really changed (re-levelled, moved): the covariance is
+        re-inflated to the fine pass's initial value (plus the velocity the innovations
+        show), so the aligned flag drops and the filter re-converges.
     """
 
     latitude_deg: float
@@ -137,6 +145,8 @@ class AlignConfig:
     disturbance_nis: float = 3.0
     reinflate_nis: float = 100.0
     reinflate_holdoff: float = 5.0
+    gate_nis: float = 16.27
+    reinflate_gated_time: float = 5.0
 
     def __post_init__(self):
         if isinstance(self.specs, str):
@@ -155,7 +165,7 @@ class AlignConfig:
                      "fine_update_period", "fine_min_velocity_noise", "min_dt_ratio",
                      "max_gap", "max_angular_rate", "specific_force_tolerance",
                      "aligned_std_ratio", "disturbance_nis", "gap_ratio", "reinflate_nis",
-                     "reinflate_holdoff"):
+                     "reinflate_holdoff", "gate_nis", "reinflate_gated_time"):
             v = getattr(self, name)
             _check(math.isfinite(v) and v > 0.0, f"{name} must be finite and > 0, got {v!r}")
         for name in ("coarse_initial_std_deg", "fine_initial_std_deg"):
@@ -234,6 +244,7 @@ class AlignmentFilter:
         self._buf = _SampleBuffer(self.n) if c.backtrack else None
         self._B = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
         self.reinflations = np.zeros(self.n, dtype=int)
+        self.gated_updates = np.zeros(self.n, dtype=int)
 
     # ------------------------------------------------------------------ state
     def _start_pass(self, C0, fine: bool, std, R):
@@ -254,6 +265,10 @@ class AlignmentFilter:
         self.nis_mean = np.zeros(self.n)
         self.updates = 0
         self.last_reinflate = np.zeros(self.n)
+        self.gate_start = np.full(self.n, np.nan)   # t_int of the first gated update in a row
+        self.last_gated_z = np.zeros((3, self.n))   # innovation of the last gated update
+        self._gated = None             # runs whose last update was gated (None: none)
+        self._inflate = None           # runs to re-inflate after the last update (fine pass)
         self._node = None              # position in the gain-schedule cache (None: unknown)
 
     def total_covariance(self) -> np.ndarray:
@@ -443,12 +458,15 @@ class AlignmentFilter:
                 self._cov_block(m, dt, None, 0.0, jumps)
                 Ct, X = X, Ct
                 continue
+            before = self.P, self.S, self._node
             Kg, Sinv = self._cov_block(m, dt, Hu, scale, jumps)
             if self.fine:
                 self._innovate(vs / self.t_acc, Kg, Sinv, out=x)
                 vs[...] = 0.0
             else:
                 self._innovate(v, Kg, Sinv, out=x)
+            if self._gated is not None or self._inflate is not None:
+                self._settle(lambda: self._coast(before, m, dt, jumps))
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
             if n == 1:                                        # nine floats
                 R = np.array(so3_exp_entries(*x[:3, 0].tolist()))
@@ -465,6 +483,13 @@ class AlignmentFilter:
         self.v_sum = vs.T.copy()
         if track_B:
             self._B = np.ascontiguousarray(Bt.transpose(2, 1, 0))
+
+    def _coast(self, before, m: int, dt, jumps):
+        """P and S propagated over the interval from ``before`` (P, S, cache node) with no
+        update: what a gated update leaves (fast path)."""
+        self.P, self.S, self._node = before
+        self._cov_block(m, dt, None, 0.0, jumps)
+        return self.P, self.S
 
     def _update_due(self, t_acc: float, period: float, dt: float, H, cache: bool = True):
         """(H, R scale) of the fast path's update after ``t_acc`` s of the current interval
@@ -689,8 +714,10 @@ class AlignmentFilter:
             self.t_acc = 0.0
 
     def _correct(self, z, H, scale: float = 1.0):
+        prior = (self.P, self.S)
         K, Sinv = self._gain(H, scale)
         self._apply(z, K, Sinv)
+        self._settle(lambda: prior)
 
     def _gain(self, H, scale: float):
         """Covariance part of an update: gain K and the inverse innovation covariance
@@ -710,11 +737,17 @@ class AlignmentFilter:
         self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T)
 
     def _innovate(self, z, K, Sinv, out=None):
-        """The correction ``x = K z`` of an update and its NIS bookkeeping (re-inflation
-        included), component-major: z (3, N), returns x (6, N) (in ``out`` if given)."""
+        """The correction ``x = K z`` of an update and its NIS bookkeeping, component-major:
+        z (3, N), returns x (6, N) (in ``out`` if given).
+
+        Coarse pass: runs whose running mean NIS exceeds ``reinflate_nis`` are re-inflated
+        here. Fine pass: runs whose NIS exceeds ``gate_nis`` are gated (their x is zero and
+        they are marked in ``_gated``: the caller's :meth:`_settle` gives them back their
+        prior covariance); runs gated persistently are marked in ``_inflate``."""
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
         c = self.config
+        self._gated = self._inflate = None
         if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
             x = np.matmul(K[0], z, out=out)
             if z.shape[1] == 1:             # one run (the node, replay): scalar arithmetic
@@ -724,16 +757,29 @@ class AlignmentFilter:
                      + z1 * (s10 * z0 + s11 * z1 + s12 * z2)
                      + z2 * (s20 * z0 + s21 * z1 + s22 * z2)) / 3.0
                 m = float(self.nis_mean[0])
-                m += a * (r - m)
-                self.nis_mean = np.array([m])
-                if m <= c.reinflate_nis:
-                    return x
+                if self.fine:
+                    if 3.0 * r <= c.gate_nis:
+                        self.nis_mean = np.array([m + a * (r - m)])
+                        if self.gate_start[0] == self.gate_start[0]:      # not NaN
+                            self.gate_start = np.full(1, np.nan)
+                        return x
+                    r = np.array([r])
+                else:
+                    m += a * (r - m)
+                    self.nis_mean = np.array([m])
+                    if m <= c.reinflate_nis:
+                        return x
+                    r = None                # already in the mean
             else:
                 r = _THIRDS @ ((Sinv[0] @ z) * z)
-                self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
         else:
             x = np.einsum("nij,jn->in", K, z, out=out)
-            self.nis_mean = self.nis_mean + a * (nis(z.T, Sinv) / 3.0 - self.nis_mean)
+            r = nis(z.T, Sinv) / 3.0
+        if self.fine:
+            self._gate(r, a, x, z)
+            return x
+        if r is not None:
+            self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
         if self.nis_mean.max() > c.reinflate_nis:
             bad = (self.nis_mean > c.reinflate_nis) & (
                 self.t_int - self.last_reinflate >= c.reinflate_holdoff - 1e-6)
@@ -741,22 +787,80 @@ class AlignmentFilter:
                 self._reinflate(bad)
         return x
 
-    def _reinflate(self, mask: np.ndarray):
+    def _gate(self, r, a: float, x, z):
+        """Fine-pass gating (chi-square on the NIS, robot_localization style).
+
+        An update whose NIS ``3 r`` exceeds ``gate_nis`` is not applied: a shove or a door
+        slam is not evidence about the attitude, and re-inflating for it would throw the
+        alignment away. Its NIS still enters the running mean (capped at 100 per dof, so one
+        jolt does not read as 'disturbed' for minutes). Gating that persists means the
+        attitude really changed: two gated updates in a row whose innovation grows in the
+        same direction (a tilt error makes the velocity grow; a shove's velocity returns),
+        or ``reinflate_gated_time`` of gated updates, mark the run for re-inflation.
+        """
+        c = self.config
+        self.nis_mean = self.nis_mean + a * (np.minimum(r, 100.0) - self.nis_mean)
+        g = 3.0 * r > c.gate_nis
+        if not g.any():
+            self.gate_start = np.full(self.n, np.nan)
+            return
+        prev = self.last_gated_z
+        again = g & ~np.isnan(self.gate_start)
+        growing = again & (np.einsum("in,in->n", z, prev) > np.einsum("in,in->n", prev, prev))
+        self.gate_start = np.where(g, np.where(again, self.gate_start, self.t_int), np.nan)
+        self.last_gated_z = np.where(g, z, 0.0)
+        self.gated_updates += g
+        x[:, g] = 0.0
+        self._gated = g
+        persist = g & (growing | (self.t_int - self.gate_start >= c.reinflate_gated_time - 1e-6))
+        if persist.any():
+            self._inflate = persist
+            self._inflate_z = z.copy()
+
+    def _settle(self, prior):
+        """After an update: runs that were gated get back their prior covariance (``prior()``
+        returns it: P, S of the propagation alone), and runs whose gating persisted are
+        re-inflated (fine pass)."""
+        g = self._gated
+        if g is not None:
+            post = self.P, self.S
+            Pp, Sp = prior()
+            if g.all():
+                self.P, self.S = Pp, Sp
+            else:
+                shape = (self.n, 6, 6)
+                P, S = (np.broadcast_to(q, shape).copy() for q in post)
+                P[g] = np.broadcast_to(Pp, shape)[g]
+                S[g] = np.broadcast_to(Sp, shape)[g]
+                self.P, self.S, self._node = P, S, None
+            self._gated = None
+        if self._inflate is not None:
+            mask, self._inflate = self._inflate, None
+            self._reinflate(mask, self._inflate_z)
+
+    def _reinflate(self, mask: np.ndarray, z=None):
         """Reset the covariance of the runs in ``mask`` to the pass's initial value.
 
-        The innovations say the error is far larger than the covariance claims (a
-        large-angle transient stuck near a 180 deg flip): restarting the gain schedule
-        lets the filter move again instead of crawling with a collapsed covariance.
+        Coarse pass: the innovations say the error is far larger than the covariance claims
+        (a large-angle transient stuck near a 180 deg flip): restarting the gain schedule
+        lets the filter move again instead of crawling with a collapsed covariance. Fine
+        pass (``z``, the last innovation, given): the attitude really changed; the velocity
+        variance also covers the velocity error accumulated while updates were gated.
         """
         P = np.broadcast_to(self.P, (self.n, 6, 6)).copy()
         S = np.broadcast_to(self.S, (self.n, 6, 6)).copy()
         P[mask] = self.P0[0]
+        if z is not None:
+            i = np.arange(3, 6)
+            P[:, i, i] += np.where(mask[:, None], (z * z).T, 0.0)
         S[mask] = 0.0
         self.P, self.S = P, S
         self._node = None
         self.nis_mean = np.where(mask, 0.0, self.nis_mean)
+        self.gate_start = np.where(mask, np.nan, self.gate_start)
         self.last_reinflate = np.where(mask, self.t_int, self.last_reinflate)
         self.reinflations += mask
+
     # ------------------------------------------------------------------ backtrack
     def backtrack(self):
         """Carry the estimate back to the first sample and rerun the buffer in the fine pass.
@@ -1012,7 +1116,8 @@ class Aligner:
 
     @property
     def aligned(self) -> bool:
-        """Aligned flag (criteria in :meth:`aligned_now`). Latches until disturbed or fault."""
+        """Aligned flag: :meth:`aligned_now` as of the last update (the published std only
+        shrinks at an update; it is re-checked after every update, hole and restart)."""
         return self._aligned
 
     @property
@@ -1178,20 +1283,25 @@ class Aligner:
         fl = self.filter
         before = (fl.updates, fl.stage, id(fl))
         fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None)
-        if (fl.updates, fl.stage, id(fl)) != before or self._aligned:
-            # the published std only shrinks at an update (or the backtrack); between
-            # updates the flag cannot newly turn true, so the check is skipped there
+        if (fl.updates, fl.stage, id(fl)) != before:
+            # the flag is re-evaluated where the covariance jumps (an update, the backtrack);
+            # between updates it only grows by the process noise (the fast path checks at
+            # the same points, so node and replay agree)
             self._refresh_aligned()
         return 1
 
     # ------------------------------------------------------------------ aligned flag
     def aligned_now(self) -> bool:
-        """Criteria: no fault, not disturbed, the fine pass running (unless backtrack is off),
-        and the published std of every observable axis at most
+        """Criteria: no fault, the fine pass running (unless backtrack is off), and the
+        published std of every observable axis at most
         ``max(aligned_std_ratio x reachable std, aligned_min_*_std_deg)``, where the reachable
-        std is the larger of the limit accuracy and the fine pass's steady-state std."""
+        std is the larger of the limit accuracy and the fine pass's steady-state std.
+
+        A disturbance (motion the model cannot explain: ``disturbed``) does not withdraw a
+        good alignment by itself: its updates are gated, and the flag drops when the std
+        grows past the criterion (a real change of attitude re-inflates the covariance)."""
         c = self.config
-        if self.units_suspect or self.disturbed:
+        if self.units_suspect:
             return False
         if c.backtrack and not self.filter.backtracked:
             return False
@@ -1216,11 +1326,12 @@ class Aligner:
         return bool(ok)
 
     def _refresh_aligned(self):
-        if self.units_suspect or self.disturbed:
-            self._aligned = False
-        elif not self._aligned and self.aligned_now():
-            self._aligned = True
-            if self.time_to_aligned is None:
+        """Re-evaluate the flag (after an update, the backtrack, a hole, a restart): true
+        exactly while :meth:`aligned_now` holds."""
+        now = self.aligned_now()
+        if now != self._aligned:
+            self._aligned = now
+            if now and self.time_to_aligned is None:
                 self.time_to_aligned = self.elapsed
 
     # ------------------------------------------------------------------ summary
