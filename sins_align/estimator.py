@@ -56,6 +56,10 @@ REJECT_REASONS = (
 #: blocks of at least this many clean samples take the fast path in Aligner.update
 FAST_MIN_BLOCK = 64
 FAST_MAX_BLOCK = 65536
+#: samples in a row that must agree on a new time line before it is taken (a time jump)
+JUMP_CONFIRM = 3
+#: an interval above this multiple of the nominal one means samples are missing
+HOLE_RATIO = 1.5
 
 #: gain schedules of the constant model, shared between filter instances (see _cov_block)
 _SCHEDULE_CACHE: dict = {}
@@ -95,7 +99,9 @@ class AlignConfig:
     rate_hz : nominal IMU rate; None = estimated from the first stamps.
     min_dt_ratio : reject dt below this fraction of the nominal interval.
     gap_ratio : dt above this multiple of the nominal interval is a gap: the sample is used
-        for one nominal interval and the rest is bridged as static (covariance grows).
+        for one nominal interval and the rest is bridged as static. Any hole (dt above 1.5
+        nominal intervals) grows the covariance by what the recent motion could have done
+        in that time.
     max_gap : s; a larger dt is a time jump: the sample is rejected and time re-anchored.
     max_angular_rate : rad/s; larger rates are rejected.
     specific_force_tolerance : fraction of g allowed between |f| and g.
@@ -110,7 +116,9 @@ class AlignConfig:
     reinflate_holdoff : s between two re-inflations of the same run.
     gate_nis : fine pass: an update whose NIS (3 dof, chi-square when the model fits)
         exceeds this is not applied (a shove, a door slam: the model cannot explain it);
-        the state and covariance coast over it. Default: the 0.999 chi-square quantile.
+        the state and covariance coast over it. When the next one is out of the gate too,
+        the velocity variance is grown by the innovation and the update applied (a lasting
+        velocity error). Default: the 0.999 chi-square quantile.
     reinflate_gated_time : fine pass: s of consecutive gated updates after which the
         attitude is taken to have really changed (re-levelled, moved): the covariance is
         re-inflated to the fine pass's initial value (plus the velocity the innovations
@@ -266,9 +274,10 @@ class AlignmentFilter:
         self.updates = 0
         self.last_reinflate = np.zeros(self.n)
         self.gate_start = np.full(self.n, np.nan)   # t_int of the first gated update in a row
-        self.last_gated_z = np.zeros((3, self.n))   # innovation of the last gated update
         self._gated = None             # runs whose last update was gated (None: none)
+        self._absorb = None            # runs whose last update absorbs a velocity error
         self._inflate = None           # runs to re-inflate after the last update (fine pass)
+        self._z = None                 # innovation of the last update out of the gate
         self._node = None              # position in the gain-schedule cache (None: unknown)
 
     def total_covariance(self) -> np.ndarray:
@@ -280,15 +289,18 @@ class AlignmentFilter:
         return P + (S * self._bias_var) @ S.mT
 
     # ------------------------------------------------------------------ one sample
-    def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0, dR=None):
+    def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0, dR=None,
+             hole=(0.0, 0.0)):
         """One accepted IMU sample for every run: w, f (N, 3); dt, gap shared (s).
-        ``dR``: exp(w dt) (N, 3, 3), when the caller has it already."""
+        ``dR``: exp(w dt) (N, 3, 3), when the caller has it already. ``hole``: (attitude
+        rad^2, velocity (m/s)^2) variance per axis of what the motion could have done in
+        ``gap`` seconds of missing samples (added to the covariance, see :meth:`_advance`)."""
         if dR is None:
             dR = so3_exp(w * dt)
         if self._buf is not None and not self.backtracked:
-            self._buf.append(dt, w, f, gap)
+            self._buf.append(dt, w, f, gap, hole)
             self._B = self._B @ dR
-        self._advance(dt, w, f, gap, dR)
+        self._advance(dt, w, f, gap, dR, hole)
         if self._backtrack_due(dt):
             self.backtrack()
 
@@ -465,8 +477,8 @@ class AlignmentFilter:
                 vs[...] = 0.0
             else:
                 self._innovate(v, Kg, Sinv, out=x)
-            if self._gated is not None or self._inflate is not None:
-                self._settle(lambda: self._coast(before, m, dt, jumps))
+            if self._gated is not None or self._absorb is not None or self._inflate is not None:
+                self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
             if n == 1:                                        # nine floats
                 R = np.array(so3_exp_entries(*x[:3, 0].tolist()))
@@ -682,12 +694,17 @@ class AlignmentFilter:
         self._node = None
         self.S = Phi @ self.S + self.Gamma * dt
 
-    def _advance(self, dt, w, f, gap, dR=None):
+    def _advance(self, dt, w, f, gap, dR=None, hole=(0.0, 0.0)):
         """Mechanization (paper eq. 1), covariance propagation, and an update when due.
         ``dR``: exp(w dt), when the caller has it already."""
         if gap > 0.0:
             # bridged as static: the state stays, the errors grow over the gap
             self._propagate(self._F(-self.g_n + 0.0 * self.v), gap)
+        va, vv = hole
+        if va > 0.0 or vv > 0.0:
+            # samples were missing: what the motion could have done meanwhile (Aligner)
+            self.P = self.P + np.diag([va] * 3 + [vv] * 3)
+            self._node = None
         self.C = self._earth_step(dt) @ self.C @ (so3_exp(w * dt) if dR is None else dR)
         fn = (self.C @ f[..., None])[..., 0]
         self.v = self.v + (fn + self.g_n) * dt
@@ -716,8 +733,10 @@ class AlignmentFilter:
     def _correct(self, z, H, scale: float = 1.0):
         prior = (self.P, self.S)
         K, Sinv = self._gain(H, scale)
-        self._apply(z, K, Sinv)
-        self._settle(lambda: prior)
+        x = self._innovate(z.T, K, Sinv)
+        if self._gated is not None or self._absorb is not None or self._inflate is not None:
+            self._settle(lambda: prior, H, scale, x)
+        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T)
 
     def _gain(self, H, scale: float):
         """Covariance part of an update: gain K and the inverse innovation covariance
@@ -730,12 +749,6 @@ class AlignmentFilter:
         # innovation covariance with the bias part: H (P + S Sb S^T) H^T + R
         return K, inv3(Sn + (HS * self._bias_var) @ HS.mT)
 
-    def _apply(self, z, K, Sinv):
-        """State part of an update: feedback of K z (z (N, 3)), NIS bookkeeping,
-        re-inflation."""
-        x = self._innovate(z.T, K, Sinv)
-        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T)
-
     def _innovate(self, z, K, Sinv, out=None):
         """The correction ``x = K z`` of an update and its NIS bookkeeping, component-major:
         z (3, N), returns x (6, N) (in ``out`` if given).
@@ -747,7 +760,7 @@ class AlignmentFilter:
         self.updates += 1
         a = 0.1 if self.updates > 10 else 1.0 / self.updates
         c = self.config
-        self._gated = self._inflate = None
+        self._gated = self._absorb = self._inflate = None
         if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
             x = np.matmul(K[0], z, out=out)
             if z.shape[1] == 1:             # one run (the node, replay): scalar arithmetic
@@ -791,12 +804,14 @@ class AlignmentFilter:
         """Fine-pass gating (chi-square on the NIS, robot_localization style).
 
         An update whose NIS ``3 r`` exceeds ``gate_nis`` is not applied: a shove or a door
-        slam is not evidence about the attitude, and re-inflating for it would throw the
-        alignment away. Its NIS still enters the running mean (capped at 100 per dof, so one
-        jolt does not read as 'disturbed' for minutes). Gating that persists means the
-        attitude really changed: two gated updates in a row whose innovation grows in the
-        same direction (a tilt error makes the velocity grow; a shove's velocity returns),
-        or ``reinflate_gated_time`` of gated updates, mark the run for re-inflation.
+        slam is not evidence about the attitude (and its velocity returns). Its NIS still
+        enters the running mean (capped at 100 per dof, so one jolt does not read as
+        'disturbed' for minutes). When the next update is out of the gate too, the
+        velocity error is lasting (a lost velocity increment, a push that did not return):
+        the update is applied with the velocity variance grown by the innovation
+        (``_absorb``), so the velocity state takes it instead of the attitude. Updates out
+        of the gate for ``reinflate_gated_time`` in a row mean the attitude really changed
+        (re-levelled, moved): the run is marked for re-inflation (``_inflate``).
         """
         c = self.config
         self.nis_mean = self.nis_mean + a * (np.minimum(r, 100.0) - self.nis_mean)
@@ -804,39 +819,59 @@ class AlignmentFilter:
         if not g.any():
             self.gate_start = np.full(self.n, np.nan)
             return
-        prev = self.last_gated_z
         again = g & ~np.isnan(self.gate_start)
-        growing = again & (np.einsum("in,in->n", z, prev) > np.einsum("in,in->n", prev, prev))
         self.gate_start = np.where(g, np.where(again, self.gate_start, self.t_int), np.nan)
-        self.last_gated_z = np.where(g, z, 0.0)
         self.gated_updates += g
-        x[:, g] = 0.0
-        self._gated = g
-        persist = g & (growing | (self.t_int - self.gate_start >= c.reinflate_gated_time - 1e-6))
+        self._z = z.copy()
+        first = g & ~again
+        if first.any():
+            x[:, first] = 0.0
+            self._gated = first
+        if again.any():
+            self._absorb = again
+        persist = g & (self.t_int - self.gate_start >= c.reinflate_gated_time - 1e-6)
         if persist.any():
             self._inflate = persist
-            self._inflate_z = z.copy()
 
-    def _settle(self, prior):
-        """After an update: runs that were gated get back their prior covariance (``prior()``
-        returns it: P, S of the propagation alone), and runs whose gating persisted are
+    def _settle(self, prior, H=None, scale: float = 1.0, x=None):
+        """After an update (before its feedback): runs that were gated get back their prior
+        covariance (``prior()`` returns it: P, S of the propagation alone); runs that absorb
+        a lasting velocity error are updated again from that prior with the velocity
+        variance grown by the innovation (``x`` rewritten); runs whose gating persisted are
         re-inflated (fine pass)."""
-        g = self._gated
-        if g is not None:
-            post = self.P, self.S
+        g, ab = self._gated, self._absorb
+        if g is not None or ab is not None:
+            shape = (self.n, 6, 6)
+            postP, postS = self.P, self.S
             Pp, Sp = prior()
-            if g.all():
+            if ab is not None:
+                z = self._z
+                P = np.broadcast_to(Pp, shape).copy()
+                i = np.arange(3, 6)
+                P[:, i, i] += np.where(ab[:, None], (z * z).T, 0.0)
+                self.P, self.S = P, np.broadcast_to(Sp, shape).copy()
+                K, _ = self._gain(H, scale)
+                xa = np.einsum("nij,jn->in", K, z)
+                x[:, ab] = xa[:, ab]
+                Pa, Sa = self.P, self.S
+                keep = ~ab if g is None else ~(ab | g)
+                P = np.where(keep[:, None, None], np.broadcast_to(postP, shape), Pa)
+                S = np.where(keep[:, None, None], np.broadcast_to(postS, shape), Sa)
+                if g is not None:
+                    P = np.where(g[:, None, None], np.broadcast_to(Pp, shape), P)
+                    S = np.where(g[:, None, None], np.broadcast_to(Sp, shape), S)
+                self.P, self.S, self._node = P, S, None
+            elif g.all():
                 self.P, self.S = Pp, Sp
             else:
-                shape = (self.n, 6, 6)
-                P, S = (np.broadcast_to(q, shape).copy() for q in post)
+                P, S = (np.broadcast_to(q, shape).copy() for q in (postP, postS))
                 P[g] = np.broadcast_to(Pp, shape)[g]
                 S[g] = np.broadcast_to(Sp, shape)[g]
                 self.P, self.S, self._node = P, S, None
-            self._gated = None
+            self._gated = self._absorb = None
         if self._inflate is not None:
             mask, self._inflate = self._inflate, None
-            self._reinflate(mask, self._inflate_z)
+            self._reinflate(mask, self._z)
 
     def _reinflate(self, mask: np.ndarray, z=None):
         """Reset the covariance of the runs in ``mask`` to the pass's initial value.
@@ -871,7 +906,7 @@ class AlignmentFilter:
         """
         c = self.config
         C0 = so3_exp(self.w_ie * self.t_int) @ self.C @ np.swapaxes(self._B, -1, -2)
-        dt, w, f, gap = self._buf.arrays()
+        dt, w, f, gap, hole = self._buf.arrays()
         r_std, self.fine_period = self._sway_velocity_std(C0, dt, w, f)
         self.fine_R_std = r_std
         R = np.zeros((self.n, 3, 3))
@@ -881,15 +916,23 @@ class AlignmentFilter:
         self.stage = "fine"
         self.backtracked = True
         self._buf = None
-        fits = len(dt) > 0 and not gap.any() and np.all(
-            np.abs(dt - dt.mean()) <= 0.4 * dt.mean())
-        if self.fast_backtrack and fits and c.model == "constant":
-            mean = float(dt.mean())
-            uniform = np.all(np.abs(dt - mean) <= 1e-9 * mean)
-            self._advance_block(mean if uniform else dt, w, f)
+        if not (self.fast_backtrack and c.model == "constant" and len(dt)):
+            for k in range(len(dt)):
+                self._advance(float(dt[k]), w[k], f[k], float(gap[k]), None, tuple(hole[k]))
             return
-        for k in range(len(dt)):
-            self._advance(float(dt[k]), w[k], f[k], float(gap[k]))
+        # runs of regular samples (no gap, interval within 15 % of the median) take the fast
+        # path, the others go one by one: the callback never stalls on a few odd stamps
+        med = float(np.median(dt))
+        odd = (gap > 0.0) | (hole > 0.0).any(axis=1) | (np.abs(dt - med) > 0.15 * med)
+        for a, b, regular in _runs(odd, FAST_MIN_BLOCK):
+            if not regular:
+                for k in range(a, b):
+                    self._advance(float(dt[k]), w[k], f[k], float(gap[k]), None, tuple(hole[k]))
+                continue
+            d = dt[a:b]
+            mean = float(d.mean())
+            uniform = np.all(np.abs(d - mean) <= 1e-9 * mean)
+            self._advance_block(mean if uniform else d, w[a:b], f[a:b])
 
     @property
     def steady_std(self) -> np.ndarray | None:
@@ -1020,18 +1063,23 @@ class Aligner:
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self):
-        """Forget everything but the configuration (counters included)."""
+        """Forget the alignment and the time line; keep the configuration and the counters
+        (``rejected``, ``events``, ``samples_used`` count over the Aligner's life: a restart
+        never wipes them)."""
         c = self.config
-        self.rejected: Counter = Counter()
-        self.events: Counter = Counter()
+        if not hasattr(self, "rejected"):
+            self.rejected: Counter = Counter()
+            self.events: Counter = Counter()
+            self.samples_used = 0
         self.last_reject: str | None = None
-        self.samples_used = 0
         self.t_first: float | None = None
         self.t_last: float | None = None
         self._t_prev_raw: float | None = None
+        self._jump: tuple[float, int] | None = None    # pending time jump: (stamp, samples)
         self._dt_seen: list[float] = []
         self.nominal_dt = 1.0 / c.rate_hz if c.rate_hz else None
         self._units = _UnitsMonitor(self) if c.units_check_window > 0 else None
+        self._recent = _Recent()
         self.units_suspect = False
         self._restart_filter()
 
@@ -1076,14 +1124,24 @@ class Aligner:
         Filter covariance plus the bias-induced part ``S Sigma_b S^T`` for biases drawn from
         the specs (consider analysis). Before the backtrack the coarse pass is a starting
         point, not a result: its own covariance can be far too small in large-angle
-        transients, so the published std is at least ``fine_initial_std_deg`` in level and
-        ``coarse_initial_std_deg`` in heading until the fine pass runs. When heading is
+        transients, so until the fine pass runs the published level std is at least
+        ``fine_initial_std_deg`` and at least the angle between the estimated up and the
+        last second's specific force (the level error the accelerometer sees), and the
+        heading std at least ``coarse_initial_std_deg``. When heading is
         unobservable the U row/column is cleared and its variance set to pi^2.
         """
         P = self.filter.total_covariance()[0, :3, :3].copy()
         c = self.config
         if c.backtrack and not self.filter.backtracked:
-            floor = np.array([c.fine_initial_std_deg[0]] * 2 + [c.coarse_initial_std_deg[1]]) * DEG
+            level = c.fine_initial_std_deg[0] * DEG
+            fm = self._recent.mean_force(1.0)
+            if fm is not None:
+                # the accelerometer's own view of the level error: the angle between the
+                # estimated up and the specific force of the last second (large in the
+                # first seconds from a start far off, e.g. upside down)
+                up = self.dcm[2] @ fm / max(float(np.linalg.norm(fm)), 1e-12)
+                level = max(level, math.acos(max(-1.0, min(1.0, up))))
+            floor = np.array([level, level, c.coarse_initial_std_deg[1] * DEG])
             sd = np.sqrt(np.diag(P))
             scale = np.maximum(floor, sd) / sd
             P = P * np.outer(scale, scale)
@@ -1208,6 +1266,7 @@ class Aligner:
                 t, w, f, dts = t[:m], w[:m], f[:m], dts[:m]
         self.t_last = self._t_prev_raw = float(t[-1])
         self.samples_used += len(t)
+        self._recent.extend(dts, w, f)
 
         def check(i):                     # after every live update, as after every sample
             self.t_last = float(t[i])
@@ -1232,13 +1291,45 @@ class Aligner:
         ``undecodable``); the state is not touched."""
         self._reject("undecodable")
 
+    def _static_reason(self, w: np.ndarray, f: np.ndarray) -> str | None:
+        """The reason to reject a sample on its own values (no time line needed), or None."""
+        c = self.config
+        fn = math.sqrt(float(f @ f))
+        if fn < 0.25 * self.g:
+            return "gravity_removed"
+        if abs(fn - self.g) > c.specific_force_tolerance * self.g:
+            return "specific_force_out_of_range"
+        return None
+
+    def _time_jump(self, t: float) -> int:
+        """A stamp more than ``max_gap`` after the last one seen: rejected. The time line is
+        re-anchored only once JUMP_CONFIRM samples in a row agree on the new one; a single
+        wild stamp is an outlier (events 'stamp_outlier' when the old line resumes)."""
+        j = self._jump
+        if j is not None and 0.0 < t - j[0] <= self.config.max_gap:
+            j = (t, j[1] + 1)
+        else:
+            j = (t, 1)
+        self._jump = j
+        if j[1] >= JUMP_CONFIRM:
+            self._jump = None
+            self.t_last = self._t_prev_raw = t
+            self.events["time_jump"] += 1
+        return self._reject("time_jump")
+
     def _sample(self, t: float, w: np.ndarray, f: np.ndarray) -> int:
         c = self.config
         if not (math.isfinite(t) and np.isfinite(w).all() and np.isfinite(f).all()):
             return self._reject("nonfinite")
         if self.t_last is None:
-            # the first sample anchors time; it has no interval to integrate over
+            # the first accepted sample anchors time; it has no interval to integrate over
+            why = self._static_reason(w, f)
+            if why is None and math.sqrt(float(w @ w)) > c.max_angular_rate:
+                why = "rate_too_high"
+            if why is not None:
+                return self._reject(why)
             self.t_first = self.t_last = self._t_prev_raw = t
+            self._recent.push(0.0, w, f)
             self.events["first_sample"] += 1
             return 0
         dt = t - self.t_last
@@ -1246,13 +1337,16 @@ class Aligner:
             return self._reject("duplicate_stamp")
         if dt < 0.0:
             return self._reject("stamp_backwards")
-        if dt > c.max_gap:
-            self.t_last = t
-            self.events["time_jump"] += 1
-            return self._reject("time_jump")
         raw_dt = t - self._t_prev_raw
+        if raw_dt > c.max_gap:
+            return self._time_jump(t)
+        if self._jump is not None:          # the old time line goes on: that was one stamp
+            self._jump = None
+            self.events["stamp_outlier"] += 1
+        if raw_dt <= 0.0:                   # behind a rejected sample's stamp, not the line's
+            raw_dt = dt
         self._t_prev_raw = t
-        if self.nominal_dt is None and raw_dt > 0.0:
+        if self.nominal_dt is None:
             # message interval, measured between consecutive samples whatever their fate
             self._dt_seen.append(raw_dt)
             if len(self._dt_seen) >= 20:
@@ -1261,11 +1355,9 @@ class Aligner:
         nom = self.nominal_dt
         if nom is not None and dt < c.min_dt_ratio * nom:
             return self._reject("dt_too_small")
-        fn = math.sqrt(float(f @ f))
-        if fn < 0.25 * self.g:
-            return self._reject("gravity_removed")
-        if abs(fn - self.g) > c.specific_force_tolerance * self.g:
-            return self._reject("specific_force_out_of_range")
+        why = self._static_reason(w, f)
+        if why is not None:
+            return self._reject(why)
         dR = None
         if self._units is not None:
             dR = self._units.add(raw_dt, w, f)
@@ -1274,19 +1366,29 @@ class Aligner:
                 return self._reject("rates_look_like_deg_per_s")
         if math.sqrt(float(w @ w)) > c.max_angular_rate:
             return self._reject("rate_too_high")
-        gap = 0.0
-        if nom is not None and dt > c.gap_ratio * nom:
-            gap, dt = dt - nom, nom
-            self.events["gap"] += 1
+        gap, hole = 0.0, (0.0, 0.0)
+        if nom is not None and dt > HOLE_RATIO * nom:
+            # samples are missing (lost, or rejected). Up to gap_ratio intervals this one is
+            # integrated over the whole interval (its rate stands in for the missing ones);
+            # beyond, it covers one nominal interval and the rest is bridged as static.
+            # Either way the covariance grows by what the motion seen before could have
+            # done meanwhile (Aligner._recent)
+            missing = dt - nom
+            if dt > c.gap_ratio * nom:
+                gap, dt = missing, nom
+                self.events["gap"] += 1
+            hole = self._recent.hole_variance(missing, nom, gap == 0.0)
+            self.events["missing_samples"] += max(1, int(round(missing / nom)))
         self.t_last = t
         self.samples_used += 1
+        self._recent.push(dt, w, f)
         fl = self.filter
         before = (fl.updates, fl.stage, id(fl))
-        fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None)
-        if (fl.updates, fl.stage, id(fl)) != before:
-            # the flag is re-evaluated where the covariance jumps (an update, the backtrack);
-            # between updates it only grows by the process noise (the fast path checks at
-            # the same points, so node and replay agree)
+        fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None, hole)
+        if (fl.updates, fl.stage, id(fl)) != before or hole != (0.0, 0.0):
+            # the flag is re-evaluated where the covariance jumps (an update, the backtrack,
+            # a hole); between updates it only grows by the process noise (the fast path
+            # checks at the same points, so node and replay agree)
             self._refresh_aligned()
         return 1
 
@@ -1358,6 +1460,24 @@ class Aligner:
         }
 
 
+def _runs(odd: np.ndarray, least: int):
+    """(start, end, regular) pieces covering ``odd``'s indices in order: runs of at least
+    ``least`` samples that are not odd are regular, everything between them is not."""
+    ok = np.concatenate(([False], ~odd, [False]))
+    edges = np.flatnonzero(np.diff(ok.astype(np.int8)))
+    starts, ends = edges[0::2], edges[1::2]
+    keep = ends - starts >= least
+    out, k = [], 0
+    for a, b in zip(starts[keep].tolist(), ends[keep].tolist()):
+        if a > k:
+            out.append((k, a, False))
+        out.append((a, b, True))
+        k = b
+    if k < len(odd):
+        out.append((k, len(odd), False))
+    return out
+
+
 def _rows_times(Ct, M, out):
     """``out[k, i, n] = sum_j Ct[j, i, n] M[j, k, n]``: C M for each run n, component-major
     with C transposed (``Ct[j, i, n] = C[i, j, n]``), so out is (C M) transposed. One einsum
@@ -1387,38 +1507,129 @@ def _last(dt, end: int) -> float:
 
 
 class _SampleBuffer:
-    """Growable store of accepted samples for the backtrack: dt, gap (M,), w, f (M, N, 3)."""
+    """Growable store of accepted samples for the backtrack: dt, gap and the hole variances
+    (attitude, velocity) (M,), w, f (M, N, 3)."""
 
     def __init__(self, n: int):
-        self._t = np.empty((1024, 2))
+        self._t = np.empty((1024, 4))
         self._wf = np.empty((1024, n, 6))
         self._n = 0
 
-    def append(self, dt, w, f, gap):
+    def append(self, dt, w, f, gap, hole=(0.0, 0.0)):
         if self._n == len(self._t):
             self._t = np.concatenate([self._t, np.empty_like(self._t)])
             self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
-        self._t[self._n] = (dt, gap)
+        self._t[self._n] = (dt, gap, hole[0], hole[1])
         self._wf[self._n, :, :3] = w
         self._wf[self._n, :, 3:] = f
         self._n += 1
 
     def extend(self, dt, w, f):
-        """Append a block of samples (constant dt, no gaps): w, f (M, N, 3)."""
+        """Append a block of samples (no gaps): w, f (M, N, 3)."""
         m = len(w)
         while self._n + m > len(self._t):
             self._t = np.concatenate([self._t, np.empty_like(self._t)])
             self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
         self._t[self._n:self._n + m, 0] = dt
-        self._t[self._n:self._n + m, 1] = 0.0
+        self._t[self._n:self._n + m, 1:] = 0.0
         self._wf[self._n:self._n + m, :, :3] = w
         self._wf[self._n:self._n + m, :, 3:] = f
         self._n += m
 
     def arrays(self):
+        """dt, w, f, gap, hole (M, 2)."""
         t = self._t[: self._n]
         wf = self._wf[: self._n]
-        return t[:, 0], wf[..., :3], wf[..., 3:], t[:, 1]
+        return t[:, 0], wf[..., :3], wf[..., 3:], t[:, 1], t[:, 2:]
+
+
+class _Recent:
+    """The last accepted samples (a ring of fixed size): how much the platform moves.
+
+    Read when samples are missing (how far the attitude and velocity could have moved in
+    the hole) and while the coarse pass runs (the specific force of the last second, the
+    accelerometer's own view of the level error). Fed sample by sample (the node) or in
+    blocks (replay), it holds the same numbers either way.
+    """
+
+    SIZE = 16384
+    WINDOW = 20.0                       # s of samples the motion statistics look at
+
+    def __init__(self):
+        self._a = np.zeros((self.SIZE, 7))       # dt, w, f
+        self._i = 0                              # next row to write
+        self._n = 0                              # rows filled
+
+    def push(self, dt: float, w, f):
+        row = self._a[self._i]
+        row[0] = dt
+        row[1:4] = w
+        row[4:7] = f
+        self._i = (self._i + 1) % self.SIZE
+        self._n = min(self._n + 1, self.SIZE)
+
+    def extend(self, dts, w, f):
+        m = len(w)
+        if m >= self.SIZE:
+            dts, w, f = dts[-self.SIZE:], w[-self.SIZE:], f[-self.SIZE:]
+            m = self.SIZE
+        idx = (self._i + np.arange(m)) % self.SIZE
+        self._a[idx, 0] = dts
+        self._a[idx, 1:4] = w
+        self._a[idx, 4:7] = f
+        self._i = (self._i + m) % self.SIZE
+        self._n = min(self._n + m, self.SIZE)
+
+    def last(self, seconds: float) -> np.ndarray:
+        """Rows (dt, w, f) of the last samples spanning at most ``seconds``, oldest first."""
+        if self._n == 0:
+            return self._a[:0]
+        idx = (self._i - 1 - np.arange(self._n)) % self.SIZE          # newest first
+        rows = self._a[idx]
+        k = int(np.searchsorted(np.cumsum(rows[:, 0]), seconds, side="right"))
+        return rows[:max(1, k)][::-1]
+
+    def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
+        """Mean specific force over the last ``seconds`` (None before any sample)."""
+        rows = self.last(seconds)
+        if not len(rows):
+            return None
+        return rows[:, 4:7].mean(axis=0)
+
+    def hole_variance(self, hole: float, nom: float, held: bool) -> tuple[float, float]:
+        """(attitude rad^2, velocity (m/s)^2) per axis: what the motion seen in the last
+        WINDOW seconds could have done in ``hole`` seconds without samples (bounds, taken
+        as one sigma; the largest axis counts for all three, the body axes not being the
+        ENU ones).
+
+        - ``held``: the next sample's rate and specific force stand in for the missing
+          ones. The error of that hold grows with the distance to the sample: with ``delta``
+          the largest change between consecutive samples, at most
+          ``delta nom j (j + 1) / 2`` for j missing samples.
+        - bridged as static, or beyond that: the largest deviation of the rate (specific
+          force) from its mean bounds the change (peak x h), and the range of its integral
+          (angle, velocity wander) bounds it for a long hole: a bounded sway cannot move
+          further than its own range, grown with the hole's length beyond the window for a
+          wander that is not stationary.
+        """
+        rows = self.last(self.WINDOW)
+        if len(rows) < 2:
+            return 0.0, 0.0
+        dt = rows[:, :1]
+        T = float(dt.sum())
+        j = hole / nom
+        out = []
+        for x in (rows[:, 1:4], rows[:, 4:7]):
+            d = x - (x * dt).sum(0) / T
+            peak = float(np.abs(d).max())
+            wander = np.cumsum(d * dt, axis=0)
+            spread = float((wander.max(0) - wander.min(0)).max())
+            bound = min(peak * hole, spread * math.sqrt(1.0 + hole / T))
+            if held:
+                delta = float(np.abs(np.diff(x, axis=0)).max())
+                bound = min(bound, delta * nom * j * (j + 1) / 2.0)
+            out.append(bound ** 2)
+        return out[0], out[1]
 
 
 class _UnitsMonitor:
