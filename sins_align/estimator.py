@@ -1063,14 +1063,14 @@ class Aligner:
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self):
-        """Forget the alignment and the time line; keep the configuration and the counters
-        (``rejected``, ``events``, ``samples_used`` count over the Aligner's life: a restart
-        never wipes them)."""
+        """Forget the alignment and the time line (``samples_used`` counts this run's
+        samples); keep the configuration and the counters ``rejected`` and ``events``, which
+        count over the Aligner's life: a restart never wipes them."""
         c = self.config
         if not hasattr(self, "rejected"):
             self.rejected: Counter = Counter()
             self.events: Counter = Counter()
-            self.samples_used = 0
+        self.samples_used = 0
         self.last_reject: str | None = None
         self.t_first: float | None = None
         self.t_last: float | None = None

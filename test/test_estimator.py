@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from sins_align.estimator import REJECT_REASONS, Aligner, AlignConfig, AlignmentFilter
+from sins_align.estimator import JUMP_CONFIRM, REJECT_REASONS, Aligner, AlignConfig, AlignmentFilter
 from sins_align.kalman import nis
-from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy
+from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, so3_log
 from sins_align.sim import simulate
 from sins_align.specs import DEG, DPH, UG, limit_error
 
@@ -225,9 +225,47 @@ def test_gap_is_bridged_and_time_jump_reanchors():
     grown = np.diag(al.filter.P[0]) > np.diag(ref.filter.P[0])
     assert grown[[0, 3, 4, 5]].all(), np.diag(al.filter.P[0]) / np.diag(ref.filter.P[0])
     assert al.update(s.t[1101] + 60.0, s.gyro[1101], s.accel[1101]) == 0
-    assert al.rejected["time_jump"] == 1
+    assert al.rejected["time_jump"] == 1 and "time_jump" not in al.events
+    # the new time line is taken once JUMP_CONFIRM samples in a row agree on it
     n = al.update(s.t[1102:] + 60.0, s.gyro[1102:], s.accel[1102:])
-    assert n == len(s.t) - 1102
+    assert al.rejected["time_jump"] == JUMP_CONFIRM and al.events["time_jump"] == 1
+    assert n == len(s.t) - 1101 - JUMP_CONFIRM
+
+
+@pytest.mark.parametrize("offset", [1000.0, -1000.0])
+def test_one_wild_stamp_is_an_outlier_not_a_new_time_line(offset):
+    """One sample stamped 1000 s in the future (or the past) is one rejection; the time line,
+    the counters and the alignment go on as if it had not been there."""
+    s = simulate(40, 100, 34.0, specs="navigation", seed=6)
+    al, ref = make_aligner(), make_aligner()
+    t = s.t.copy()
+    t[2000] += offset
+    for a, tt in ((al, t), (ref, s.t)):
+        a.update(tt[:2000], s.gyro[:2000], s.accel[:2000])
+    assert al.update(t[2000], s.gyro[2000], s.accel[2000]) == 0
+    assert sum(al.rejected.values()) == 1
+    assert al.rejected["time_jump" if offset > 0 else "stamp_backwards"] == 1
+    assert al.update(t[2001:], s.gyro[2001:], s.accel[2001:]) == len(t) - 2001
+    assert sum(al.rejected.values()) == 1 and "time_jump" not in al.events
+    ref.update(s.t[2001:], s.gyro[2001:], s.accel[2001:])   # one hole of one sample in ref
+    assert al.t_last == ref.t_last and al.samples_used == ref.samples_used
+    assert np.abs(so3_log(al.dcm @ ref.dcm.T)).max() < 1e-3
+
+
+def test_rejections_never_wipe_the_counters_and_are_reasoned():
+    """Gravity removed for 8 s: every sample of the stretch is 'gravity_removed' (none is
+    called a time jump), the first sample is checked too, and reset() keeps the counters."""
+    s = simulate(40, 100, 34.0, specs="navigation", seed=6)
+    al = make_aligner()
+    f = s.accel.copy()
+    f[:5] = 0.0                       # the first samples have no gravity: none anchors time
+    f[1000:1800] = 0.0
+    al.update(s.t, s.gyro, f)
+    assert al.rejected == {"gravity_removed": 805}
+    assert al.t_first == s.t[5]
+    assert al.events["missing_samples"] == 800 and "time_jump" not in al.events
+    al.reset()
+    assert al.rejected == {"gravity_removed": 805} and al.samples_used == 0
 
 
 def test_deg_per_s_rates_detected_rejected_and_recovered():
