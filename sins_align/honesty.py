@@ -12,6 +12,9 @@ The published covariance is that of the ENU attitude error ``phi`` with
 heading error. The body-frame error ``so3_log(C_est^T C_true)`` is the same rotation seen in
 body axes (``C_est^T phi``); comparing it with the ENU covariance would be wrong as soon as
 the IMU is tilted or turned (upside down, heading 30 deg), so it is never used.
+When heading is not observable its error can be anything (tens of degrees), and then the E
+and N components of ``so3_log`` no longer measure the tilt (a large heading error mixes into
+them): the harness then uses the heading-free tilt of :func:`tilt_heading_error` for E and N.
 
 The truth at a published state is the truth of the last sample the Aligner accepted (each
 block is fed as its first ``block - 1`` samples, then its last sample alone, so the harness
@@ -34,11 +37,12 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .estimator import AlignConfig, Aligner
-from .rotation import so3_log
+from .rotation import so3_exp, so3_log
 from .sim import (SwayProfile, combine, corrupt, door_slam, relevel, shove, simulate, tone,
                   with_events)
 
 __all__ = ["Case", "CASES", "run_case", "select_cases", "check_expectations",
+           "attitude_error_enu", "tilt_heading_error",
            "LATITUDE_DEG", "RATE_HZ", "T0"]
 
 _DEG = np.pi / 180.0
@@ -94,6 +98,35 @@ def _faults_abs(faults: dict) -> dict:
     return out
 
 
+def tilt_heading_error(C_true: np.ndarray, C_est: np.ndarray) -> np.ndarray:
+    """Error split as ``C_true = Rz(psi) exp(tau x) C_est`` with a horizontal tilt ``tau`` (E, N)
+    and a heading error ``psi`` about U: returns ``[tau_E, tau_N, psi]``, rad.
+
+    The tilt is the rotation taking the estimated "up" to the true one, ``C_est C_true^T e_U =
+    exp(-tau x) e_U``: it does not depend on the heading error at all, whereas the E and N
+    components of ``so3_log`` mix tilt and heading once the heading error is large. To first
+    order both equal phi.
+    """
+    w = C_est @ C_true.T[:, 2]
+    s = np.hypot(w[0], w[1])
+    ang = np.arctan2(s, w[2])
+    tau = np.zeros(3) if s == 0.0 else ang / s * np.array([w[1], -w[0], 0.0])
+    psi = so3_log(C_true @ C_est.T @ so3_exp(-tau))[2]
+    return np.array([tau[0], tau[1], psi])
+
+
+def attitude_error_enu(C_true: np.ndarray, C_est: np.ndarray, heading: bool = True):
+    """The harness's error (rad, E N U): ``phi = so3_log(C_true C_est^T)`` (C_true =
+    exp(phi x) C_est, the published convention); when heading is not observable (its error
+    can be anything) the E and N components are the heading-free tilt of
+    :func:`tilt_heading_error` instead, which is what the published level std is about."""
+    phi = so3_log(C_true @ C_est.T)
+    if heading:
+        return phi
+    th = tilt_heading_error(C_true, C_est)
+    return np.array([th[0], th[1], phi[2]])
+
+
 def run_case(case: Case | str, seed: int = 0,
              aligner_factory: Callable[[AlignConfig], Aligner] = Aligner,
              series: bool = False) -> dict:
@@ -120,6 +153,8 @@ def run_case(case: Case | str, seed: int = 0,
       aligned_wrong — states with ``aligned`` true while some observable axis |err| > 3 sigma,
       t_aligned_first (s since the start, None if never), frac_aligned,
       final_err_deg (3,), final_std_deg (3,), final_status, final_aligned,
+      max_stale_s — largest lag of the published state behind the last received sample
+        (true time, s): the state stops moving while samples are rejected,
       rejected (reason -> count), events (Aligner events), status_counts,
       samples_in, samples_received, samples_used, elapsed_s (wall clock),
       failed_expectations (list of str).
@@ -143,6 +178,7 @@ def run_case(case: Case | str, seed: int = 0,
     std = np.full((nb, 3), np.nan)
     aligned = np.zeros(nb, dtype=bool)
     status: list[str] = []
+    stale = np.zeros(nb)
     idx = -1                                  # index (into s) of the state's last sample
     for j, k in enumerate(range(0, n, B)):
         e = min(n, k + B)
@@ -160,8 +196,9 @@ def run_case(case: Case | str, seed: int = 0,
             continue
         P = al.covariance
         std[j] = np.sqrt(np.maximum(np.diag(P), 0.0))
-        err[j] = so3_log(C_true[idx] @ al.dcm.T)
+        err[j] = attitude_error_enu(C_true[idx], al.dcm, heading=bool(obs[2]))
         t_state[j] = s.t_true[idx] - T0
+        stale[j] = s.t_true[e - 1] - s.t_true[idx]
 
     ok = np.isfinite(t_state)
     e_abs, sd = np.abs(err[ok]), std[ok]
@@ -190,6 +227,7 @@ def run_case(case: Case | str, seed: int = 0,
         "frac_aligned": float(al_ok.mean()) if npub else 0.0,
         "final_err_deg": (err[ok][-1] / _DEG).tolist() if npub else [None] * 3,
         "final_std_deg": (std[ok][-1] / _DEG).tolist() if npub else [None] * 3,
+        "max_stale_s": float(stale.max()) if nb else 0.0,
         "final_status": al.status,
         "final_aligned": bool(al.aligned),
         "rejected": dict(al.rejected),
@@ -308,6 +346,8 @@ def _build_cases() -> dict[str, Case]:
     }
     for name, fl in faults.items():
         cases.append(Case(name, 300.0, "car", faults=fl, expectations=_HONEST))
+    cases.append(Case("static_consumer", 300.0, specs="consumer", expectations=_HONEST,
+                      note="consumer grade: heading unobservable, only E and N count"))
     cases.append(Case("upside_down_from_identity", 300.0, rpy_deg=(180.0, 0.0, 30.0),
                       initial_rpy_deg=None, expectations=_HONEST,
                       note="truth roll 180 deg, the Aligner starts from identity"))

@@ -154,3 +154,19 @@ def test_matrix_covers_the_issue():
     assert len(names) == len(select_cases(None))
     with pytest.raises(ValueError, match="unknown expectation"):
         check_expectations(Case("x", 1.0, expectations=("psychic",)), {})
+
+
+def test_tilt_heading_split_and_unobservable_heading():
+    """C_true = Rz(psi) exp(tau) C_est is split back into (tau_E, tau_N, psi) exactly, even for
+    a 140 deg heading error where so3_log's E/N components are not the tilt; with heading
+    observable the harness error is so3_log itself."""
+    from sins_align.honesty import attitude_error_enu, tilt_heading_error
+    C = dcm_from_rpy(np.radians([10.0, 20.0, 30.0]))
+    tau, psi = np.radians([0.3, -0.2, 0.0]), np.radians(140.0)
+    Ct = so3_exp(np.array([0.0, 0.0, psi])) @ so3_exp(tau) @ C
+    assert np.allclose(tilt_heading_error(Ct, C), [tau[0], tau[1], psi], rtol=0, atol=1e-12)
+    assert np.max(np.abs(so3_log(Ct @ C.T)[:2] - tau[:2])) > 1e-3     # log mixes them
+    assert np.allclose(attitude_error_enu(Ct, C, heading=False)[:2], tau[:2], atol=1e-12)
+    assert np.array_equal(attitude_error_enu(Ct, C), so3_log(Ct @ C.T))
+    r = run_case(Case("consumer_short", 20.0, specs="consumer", rpy_deg=RPY), seed=0)
+    assert not r["heading_observable"] and r["max_ratio"][2] is None

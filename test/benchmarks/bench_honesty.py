@@ -13,6 +13,7 @@ shell-style PATTERN) for seeds 0..N-1 and prints, per case (worst or total over 
 - t_al: first time aligned, s (worst seed; '-' = some seed never aligned), %al: % of states
   aligned (mean),
 - final heading error / published std, deg (the seed with the largest |error|),
+- stale: largest lag of the published state behind the stream, s (max over seeds),
 - exp: expectations of the case not met (total over seeds),
 - rejects by reason (total).
 
@@ -65,13 +66,14 @@ def _row(name: str, rs: list[dict]) -> str:
     h_err, h_std = worst["final_err_deg"][2], worst["final_std_deg"][2]
     head = "-" if h_err is None else f"{h_err:8.3f}/{h_std:<7.3f}"
     exp = sum(len(r["failed_expectations"]) for r in rs)
+    stale = max(r["max_stale_s"] for r in rs)
     rej: dict[str, int] = {}
     for r in rs:
         for k, v in r["rejected"].items():
             rej[k] = rej.get(k, 0) + v
     rej_s = " ".join(f"{_SHORT.get(k, k)}:{v}" for k, v in sorted(rej.items())) or "-"
     return (f"{name:<27} {_fmt_ratio(ratio[0])} {_fmt_ratio(ratio[1])} {_fmt_ratio(ratio[2])}"
-            f" {o3:5.1f} {v4:5d} {aw:5d} {tal_s:>5} {pal:5.1f} {head:>16} {exp:3d}  {rej_s}")
+            f" {o3:5.1f} {v4:5d} {aw:5d} {tal_s:>5} {pal:5.1f} {head:>16} {stale:6.1f} {exp:3d}  {rej_s}")
 
 
 def main(argv=None) -> int:
@@ -102,7 +104,7 @@ def main(argv=None) -> int:
     print(f"honesty matrix: {len(cases)} cases x {a.seeds} seed(s), 34 deg N, 100 Hz, "
           f"navigation grade unless named")
     print(f"{'case':<27} {'max |err|/sigma':^17} {'%>3s':>5} {'v4s':>5} {'alW':>5} "
-          f"{'t_al':>5} {'%al':>5} {'final hdg err/std':>16} {'exp':>3}  rejects")
+          f"{'t_al':>5} {'%al':>5} {'final hdg err/std':>16} {'stale':>6} {'exp':>3}  rejects")
     print(f"{'':<27} {'E':>5} {'N':>5} {'U':>5}")
     for name, rs in by_case.items():
         print(_row(name, rs))
