@@ -62,7 +62,8 @@ from .rotation import dcm_from_rpy, quat_from_dcm, skew, so3_exp, so3_log
 from .specs import SensorSpecs, grade_specs
 
 __all__ = ["SwayProfile", "SWAY_PRESETS", "sway_profile", "SimResult", "simulate",
-           "ImuSimulator", "RunsResult", "simulate_runs"]
+           "ImuSimulator", "RunsResult", "simulate_runs", "Tone", "Event", "tone", "combine",
+           "with_events", "shove", "door_slam", "relevel", "Stream", "corrupt"]
 
 _DEG = np.pi / 180.0
 #: Samples generated per internal chunk (fixed so that streaming == batch bit for bit).
@@ -76,6 +77,176 @@ def _vec3(x, name: str) -> tuple[float, float, float]:
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{name} must be 3 finite numbers, got {x!r}")
     return (float(a[0]), float(a[1]), float(a[2]))
+
+
+_KINDS = ("angular", "linear")
+
+
+@dataclass(frozen=True)
+class Tone:
+    """One extra sinusoid of a :class:`SwayProfile` (beyond its one per axis and kind).
+
+    ``theta_axis(t) += amp sin(2 pi freq t + phase)`` (kind 'angular', amp in rad, body axis)
+    or ``d_axis(t) += amp sin(2 pi freq t + phase)`` (kind 'linear', amp in m, ENU axis).
+    The phase is fixed (not drawn from the seed).
+    """
+
+    kind: str
+    axis: int
+    freq: float
+    amp: float
+    phase: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in _KINDS:
+            raise ValueError(f"Tone.kind must be one of {_KINDS}, got {self.kind!r}")
+        if isinstance(self.axis, bool) or self.axis not in (0, 1, 2):
+            raise ValueError(f"Tone.axis must be 0, 1 or 2, got {self.axis!r}")
+        for nm in ("freq", "amp", "phase"):
+            object.__setattr__(self, nm, _finite(getattr(self, nm), f"Tone.{nm}"))
+        if self.freq <= 0.0 or self.amp < 0.0:
+            raise ValueError(f"Tone needs freq > 0 and amp >= 0, got {self.freq!r}, {self.amp!r}")
+
+
+def _smoothstep(x: np.ndarray):
+    """7th-order smoothstep S(x) on [0, 1] (0 before, 1 after) and dS/dx; C3 at both ends."""
+    x = np.clip(x, 0.0, 1.0)
+    y = x * (1.0 - x)
+    return x ** 4 * (35.0 - 84.0 * x + 70.0 * x * x - 20.0 * x ** 3), 140.0 * y ** 3
+
+
+def _bump(x: np.ndarray):
+    """Bump ``256 (x (1 - x))^4`` on [0, 1] (0 outside, peak 1 at x = 1/2) and its derivative;
+    C3 at both ends."""
+    x = np.clip(x, 0.0, 1.0)
+    y = x * (1.0 - x)
+    return 256.0 * y ** 4, 1024.0 * y ** 3 * (1.0 - 2.0 * x)
+
+
+def _peak_second_derivative(kind: str) -> float:
+    x = np.linspace(0.0, 1.0, 200001)
+    y = x * (1.0 - x)
+    d2 = (420.0 * y * y * (1.0 - 2.0 * x) if kind == "step"
+          else 1024.0 * (3.0 * y * y * (1.0 - 2.0 * x) ** 2 - 2.0 * y ** 3))
+    return float(np.max(np.abs(d2)))
+
+
+#: max |S''| of the smoothstep (about 7.513) and max |b''| of the bump (32, at the centre):
+#: a profile ``D S(s / T)`` has peak acceleration ``D max|S''| / T^2``.
+_STEP_D2 = _peak_second_derivative("step")
+_BUMP_D2 = _peak_second_derivative("bump")
+
+
+@dataclass(frozen=True)
+class Event:
+    """A transient of the base, starting ``onset`` s after t0 and lasting ``duration`` s.
+
+    Over ``x = (s - onset) / duration`` in [0, 1] it adds to the sway rotation vector (body
+    axes, rad) and to the displacement of the rotation centre (ENU, m)::
+
+        theta += ang_pulse b(x) + ang_step S(x)      d += lin_pulse b(x) + lin_step S(x)
+
+    with the bump ``b`` (returns to 0, peak 1 at x = 1/2) and the smoothstep ``S`` (0 -> 1 and
+    stays), both C3: angle, rate, displacement, velocity and acceleration stay continuous, the
+    velocity returns to zero, and an ``ang_step`` changes the true attitude for good.
+    Build them with :func:`shove`, :func:`door_slam` and :func:`relevel`.
+    """
+
+    kind: str = "custom"
+    onset: float = 0.0
+    duration: float = 1.0
+    ang_pulse: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ang_step: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    lin_pulse: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    lin_step: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        object.__setattr__(self, "onset", _finite(self.onset, "Event.onset"))
+        object.__setattr__(self, "duration", _finite(self.duration, "Event.duration"))
+        if self.duration <= 0.0:
+            raise ValueError(f"Event.duration must be > 0 s, got {self.duration!r}")
+        for nm in ("ang_pulse", "ang_step", "lin_pulse", "lin_step"):
+            object.__setattr__(self, nm, _vec3(getattr(self, nm), f"Event.{nm}"))
+
+    def scaled(self, amplitude: float) -> Event:
+        """Copy with every amplitude multiplied by ``amplitude``."""
+        def s(v):
+            return tuple(amplitude * x for x in v)
+        return replace(self, ang_pulse=s(self.ang_pulse), ang_step=s(self.ang_step),
+                       lin_pulse=s(self.lin_pulse), lin_step=s(self.lin_step))
+
+    @property
+    def is_null(self) -> bool:
+        """True if the event moves nothing."""
+        return max(np.abs(self.ang_pulse + self.ang_step + self.lin_pulse
+                          + self.lin_step)) == 0.0
+
+    def evaluate(self, s: np.ndarray):
+        """(theta, theta_dot, d, d_dot) increments (M, 3) at times ``s`` (M,) since t0."""
+        x = (np.asarray(s, dtype=float) - self.onset) / self.duration
+        b, bd = _bump(x)
+        S, Sd = _smoothstep(x)
+        inside = (x > 0.0) & (x < 1.0)
+        bd, Sd = bd * inside / self.duration, Sd * inside / self.duration
+        ap, ast = np.array(self.ang_pulse), np.array(self.ang_step)
+        lp, lst = np.array(self.lin_pulse), np.array(self.lin_step)
+        return (b[:, None] * ap + S[:, None] * ast, bd[:, None] * ap + Sd[:, None] * ast,
+                b[:, None] * lp + S[:, None] * lst, bd[:, None] * lp + Sd[:, None] * lst)
+
+
+def _unit(direction, name: str) -> np.ndarray:
+    u = np.array(_vec3(direction, name))
+    nrm = np.linalg.norm(u)
+    if nrm == 0.0:
+        raise ValueError(f"{name} must not be zero")
+    return u / nrm
+
+
+def _axis(axis) -> int:
+    if isinstance(axis, bool) or axis not in (0, 1, 2):
+        raise ValueError(f"axis must be 0, 1 or 2, got {axis!r}")
+    return int(axis)
+
+
+def shove(onset: float, accel: float = 3.0, duration: float = 0.4,
+          direction: Sequence[float] = (1.0, 0.0, 0.0), jolt_deg: float = 0.3,
+          jolt_axis: int = 0) -> Event:
+    """A horizontal push: the rotation centre accelerates along ``direction`` (ENU) with peak
+    ``accel`` m/s^2 (+accel, then -accel) for ``duration`` s; the velocity returns to zero and
+    the base ends ``accel duration^2 / 7.513`` m further (bounded displacement). Optional
+    angular jolt of peak ``jolt_deg`` about body axis ``jolt_axis`` that returns to the
+    original attitude."""
+    accel, duration = _finite(accel, "accel"), _finite(duration, "duration")
+    if duration <= 0.0:
+        raise ValueError(f"duration must be > 0 s, got {duration!r}")
+    jolt = np.zeros(3)
+    jolt[_axis(jolt_axis)] = _finite(jolt_deg, "jolt_deg") * _DEG
+    return Event("shove", onset, duration, ang_pulse=jolt,
+                 lin_step=_unit(direction, "direction") * accel * duration ** 2 / _STEP_D2)
+
+
+def door_slam(onset: float, angle_deg: float = 0.5, accel: float = 5.0, duration: float = 0.1,
+              axis: int = 0, direction: Sequence[float] = (1.0, 0.0, 0.0)) -> Event:
+    """A door slam: a short (``duration`` s) angular pulse of peak ``angle_deg`` about body axis
+    ``axis`` and a linear pulse of peak acceleration ``accel`` m/s^2 along ``direction`` (ENU);
+    attitude and position return to where they were."""
+    duration = _finite(duration, "duration")
+    if duration <= 0.0:
+        raise ValueError(f"duration must be > 0 s, got {duration!r}")
+    ang = np.zeros(3)
+    ang[_axis(axis)] = _finite(angle_deg, "angle_deg") * _DEG
+    return Event("door_slam", onset, duration, ang_pulse=ang,
+                 lin_pulse=_unit(direction, "direction") * _finite(accel, "accel")
+                 * duration ** 2 / _BUMP_D2)
+
+
+def relevel(onset: float, angle_deg: float = 2.0, axis: int = 0,
+            duration: float = 1.5) -> Event:
+    """A lasting re-level: the attitude turns by ``angle_deg`` about body axis ``axis`` over
+    ``duration`` s and stays there (``C_after = C_before exp(angle e_axis)`` without sway)."""
+    ang = np.zeros(3)
+    ang[_axis(axis)] = _finite(angle_deg, "angle_deg") * _DEG
+    return Event("relevel", onset, duration, ang_step=ang)
 
 
 @dataclass(frozen=True)
@@ -106,6 +277,10 @@ class SwayProfile:
     burst_freq : (2,) Hz — range of the burst natural frequency.
     burst_damping : — damping ratio zeta of the bursts, in (0, 1).
     burst_onset : s — onset time constant of a burst (> 0).
+    tones : extra sinusoids (:class:`Tone`, fixed phases), e.g. a second one on an axis that
+        already has one (see :func:`combine`).
+    events : transients (:class:`Event`: :func:`shove`, :func:`door_slam`, :func:`relevel`),
+        onsets in s since t0.
     """
 
     name: str = "custom"
@@ -120,6 +295,8 @@ class SwayProfile:
     burst_freq: tuple[float, float] = (1.0, 3.0)
     burst_damping: float = 0.2
     burst_onset: float = 0.05
+    tones: tuple[Tone, ...] = ()
+    events: tuple[Event, ...] = ()
 
     def __post_init__(self):
         for nm in ("ang_amp", "ang_freq", "lin_amp", "lin_freq", "lever_arm",
@@ -144,6 +321,12 @@ class SwayProfile:
                              f"{self.burst_damping!r}")
         if not np.isfinite(self.burst_onset) or self.burst_onset <= 0.0:
             raise ValueError(f"SwayProfile.burst_onset must be > 0 s, got {self.burst_onset!r}")
+        object.__setattr__(self, "tones", tuple(self.tones))
+        object.__setattr__(self, "events", tuple(self.events))
+        if not all(isinstance(x, Tone) for x in self.tones):
+            raise ValueError("SwayProfile.tones must hold Tone instances")
+        if not all(isinstance(x, Event) for x in self.events):
+            raise ValueError("SwayProfile.events must hold Event instances")
 
     def scaled(self, amplitude: float) -> SwayProfile:
         """Copy with every angular and linear amplitude multiplied by ``amplitude`` (>= 0)."""
@@ -155,13 +338,17 @@ class SwayProfile:
             return tuple(amplitude * x for x in v)
 
         return replace(self, ang_amp=s(self.ang_amp), lin_amp=s(self.lin_amp),
-                       burst_ang_amp=s(self.burst_ang_amp), burst_lin_amp=s(self.burst_lin_amp))
+                       burst_ang_amp=s(self.burst_ang_amp), burst_lin_amp=s(self.burst_lin_amp),
+                       tones=tuple(replace(x, amp=amplitude * x.amp) for x in self.tones),
+                       events=tuple(e.scaled(amplitude) for e in self.events))
 
     @property
     def is_static(self) -> bool:
         """True if the profile produces no motion at all."""
         bursts = self.burst_rate > 0.0 and max(self.burst_ang_amp + self.burst_lin_amp) > 0.0
-        return not bursts and max(self.ang_amp + self.lin_amp) == 0.0
+        return (not bursts and max(self.ang_amp + self.lin_amp) == 0.0
+                and all(x.amp == 0.0 for x in self.tones)
+                and all(e.is_null for e in self.events))
 
 
 def _check_amplitude(amplitude: float) -> float:
@@ -176,7 +363,10 @@ def _check_amplitude(amplitude: float) -> float:
 
 #: Sway presets. 'car': parked car being boarded (bursts of damped 1-3 Hz oscillations,
 #: up to 0.3 deg roll/pitch, mm-level displacement). 'ship': moored ship (roll 3 deg / 8 s,
-#: pitch 1 deg / 6 s, yaw 0.5 deg / 12 s; sway/surge/heave 0.3/0.2/0.4 m).
+#: pitch 1 deg / 6 s, yaw 0.5 deg / 12 s; sway/surge/heave 0.3/0.2/0.4 m). 'ship_heave':
+#: ship at sea (roll 4 deg / 9 s, pitch 2 deg / 7 s, yaw 0.7 deg / 13 s; E/N/U 0.4/0.3/0.5 m at
+#: 11/15/8 s). 'moored_ship': gentler (roll 1 deg / 10 s, pitch 0.4 deg / 8 s, yaw 0.2 deg /
+#: 14 s; E/N/U 0.1/0.1/0.2 m at 13/15/9 s).
 SWAY_PRESETS: dict[str, SwayProfile] = {
     "none": SwayProfile(name="none"),
     "car": SwayProfile(
@@ -197,11 +387,109 @@ SWAY_PRESETS: dict[str, SwayProfile] = {
         lin_freq=(1.0 / 10.0, 1.0 / 14.0, 1.0 / 7.0),
         lever_arm=(2.0, 0.5, 3.0),
     ),
+    # ship at sea with heave, surge and sway (periods 5-15 s)
+    "ship_heave": SwayProfile(
+        name="ship_heave",
+        ang_amp=(4.0 * _DEG, 2.0 * _DEG, 0.7 * _DEG),
+        ang_freq=(1.0 / 9.0, 1.0 / 7.0, 1.0 / 13.0),
+        lin_amp=(0.4, 0.3, 0.5),
+        lin_freq=(1.0 / 11.0, 1.0 / 15.0, 1.0 / 8.0),
+        lever_arm=(3.0, 1.0, 5.0),
+    ),
+    # ship moored in a harbour: gentle
+    "moored_ship": SwayProfile(
+        name="moored_ship",
+        ang_amp=(1.0 * _DEG, 0.4 * _DEG, 0.2 * _DEG),
+        ang_freq=(1.0 / 10.0, 1.0 / 8.0, 1.0 / 14.0),
+        lin_amp=(0.1, 0.1, 0.2),
+        lin_freq=(1.0 / 13.0, 1.0 / 15.0, 1.0 / 9.0),
+        lever_arm=(2.0, 0.5, 3.0),
+    ),
 }
 
 
+def tone(kind: str, axis: int, freq_hz: float, amplitude: float,
+         lever_arm: Sequence[float] = (0.0, 0.0, 0.0)) -> SwayProfile:
+    """A pure tone as a SwayProfile (random phase from the seed, as every sinusoid).
+
+    Parameters
+    ----------
+    kind : 'angular' (``amplitude`` in deg, about body axis ``axis``) or 'linear'
+        (``amplitude`` = peak ACCELERATION in m/s^2 along ENU axis ``axis``; the displacement
+        amplitude is ``amplitude / (2 pi freq_hz)^2``).
+    axis : 0, 1, 2.
+    freq_hz : Hz (> 0).
+    lever_arm : (3,) m, body — IMU position relative to the rotation centre.
+    """
+    if kind not in _KINDS:
+        raise ValueError(f"kind must be one of {_KINDS}, got {kind!r}")
+    axis = _axis(axis)
+    f = _finite(freq_hz, "freq_hz")
+    a = _finite(amplitude, "amplitude")
+    if f <= 0.0 or a < 0.0:
+        raise ValueError(f"tone needs freq_hz > 0 and amplitude >= 0, got {freq_hz!r}, "
+                         f"{amplitude!r}")
+    amp, freq = [0.0, 0.0, 0.0], [0.1, 0.1, 0.1]
+    freq[axis] = f
+    if kind == "angular":
+        amp[axis] = a * _DEG
+        return SwayProfile(name=f"tone_ang{axis}_{f:g}Hz", ang_amp=amp, ang_freq=freq,
+                           lever_arm=lever_arm)
+    amp[axis] = a / (2.0 * np.pi * f) ** 2
+    return SwayProfile(name=f"tone_lin{axis}_{f:g}Hz", lin_amp=amp, lin_freq=freq,
+                       lever_arm=lever_arm)
+
+
+def combine(*profiles: SwayProfile | str, name: str | None = None) -> SwayProfile:
+    """One profile doing all of ``profiles`` at once (motions add up).
+
+    A sinusoid on an axis (and kind) still free in the result keeps its place and its random
+    phase; one on an axis already taken becomes a :class:`Tone` with phase 0. Tones and events
+    are concatenated. At most one profile may have bursts, and the non-zero lever arms must
+    agree (ValueError otherwise).
+    """
+    ps = [sway_profile(p) if isinstance(p, str) else p for p in profiles]
+    if not ps or not all(isinstance(p, SwayProfile) for p in ps):
+        raise ValueError("combine needs at least one SwayProfile (or preset name)")
+    out = ps[0]
+    for p in ps[1:]:
+        kw: dict = {}
+        tones = list(out.tones) + list(p.tones)
+        for kind, amp_nm, freq_nm in (("angular", "ang_amp", "ang_freq"),
+                                      ("linear", "lin_amp", "lin_freq")):
+            amp, freq = list(getattr(out, amp_nm)), list(getattr(out, freq_nm))
+            for i, (a, f) in enumerate(zip(getattr(p, amp_nm), getattr(p, freq_nm))):
+                if a == 0.0:
+                    continue
+                if amp[i] == 0.0:
+                    amp[i], freq[i] = a, f
+                else:
+                    tones.append(Tone(kind, i, f, a))
+            kw[amp_nm], kw[freq_nm] = tuple(amp), tuple(freq)
+        p_bursts = p.burst_rate > 0.0 and max(p.burst_ang_amp + p.burst_lin_amp) > 0.0
+        if p_bursts:
+            if out.burst_rate > 0.0 and max(out.burst_ang_amp + out.burst_lin_amp) > 0.0:
+                raise ValueError("combine: only one profile may have bursts")
+            kw.update(burst_rate=p.burst_rate, burst_ang_amp=p.burst_ang_amp,
+                      burst_lin_amp=p.burst_lin_amp, burst_freq=p.burst_freq,
+                      burst_damping=p.burst_damping, burst_onset=p.burst_onset)
+        if max(np.abs(p.lever_arm)) > 0.0:
+            if max(np.abs(out.lever_arm)) > 0.0 and out.lever_arm != p.lever_arm:
+                raise ValueError(f"combine: different lever arms {out.lever_arm} and "
+                                 f"{p.lever_arm}")
+            kw["lever_arm"] = p.lever_arm
+        out = replace(out, tones=tuple(tones), events=out.events + p.events, **kw)
+    return replace(out, name=name if name is not None else "+".join(p.name for p in ps))
+
+
+def with_events(profile: SwayProfile | str, *events: Event) -> SwayProfile:
+    """``profile`` (or a preset name) with ``events`` added."""
+    p = sway_profile(profile) if isinstance(profile, str) else profile
+    return replace(p, events=p.events + tuple(events))
+
+
 def sway_profile(name: str, amplitude: float = 1.0) -> SwayProfile:
-    """Preset sway profile ``name`` ('none', 'car', 'ship') with amplitudes scaled by ``amplitude``.
+    """Preset sway profile ``name`` ('none', 'car', 'ship', 'ship_heave', 'moored_ship') with amplitudes scaled by ``amplitude``.
 
     Raises
     ------
@@ -380,6 +668,18 @@ class _Sway:
         if self.has_bursts and len(s):
             for c, j in enumerate(range(*runs.indices(len(self.rngs)))):
                 self._add_bursts(j, s, theta[:, c], theta_dot[:, c], d[:, c], d_dot[:, c])
+        for x in self.p.tones:
+            arg = 2.0 * np.pi * x.freq * s + x.phase
+            tgt, tgt_dot = (theta, theta_dot) if x.kind == "angular" else (d, d_dot)
+            tgt[:, :, x.axis] += (x.amp * np.sin(arg))[:, None]
+            tgt_dot[:, :, x.axis] += (x.amp * 2.0 * np.pi * x.freq * np.cos(arg))[:, None]
+        for e in self.p.events:
+            if len(s) and s[-1] > e.onset:
+                th, th_dot, dd, dd_dot = e.evaluate(s)
+                theta += th[:, None]
+                theta_dot += th_dot[:, None]
+                d += dd[:, None]
+                d_dot += dd_dot[:, None]
         omega = np.einsum("...ij,...j->...i", _right_jacobian(theta), theta_dot)
         return theta, omega, d, d_dot
 
@@ -888,3 +1188,120 @@ def simulate_runs(duration: float, seeds: Sequence[int | None], rate: float = 10
     return RunsResult(t=t0 + np.arange(1, N + 1) / rate, gyro=gyro, accel=accel, C0=runs.C0,
                       gyro_bias=runs.gyro.bias, accel_bias=runs.accel.bias, truth_at=truth_at,
                       C_true=C_true)
+
+
+# ----------------------------------------------------------------------------------------------
+# Stream faults
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class Stream:
+    """The IMU stream as a node would receive it (:func:`corrupt`).
+
+    Attributes
+    ----------
+    t : (M,) s — received stamps (time jumps and wild stamps applied).
+    gyro, accel : (M, 3) — the received samples' data (unchanged).
+    index : (M,) int — index of each received sample in the original stream.
+    t_true : (M,) s — the original (true) stamp of each received sample.
+    wild : (M,) bool — True where the stamp is a wild one.
+    truth : the truth given to :func:`corrupt`, sliced to the received samples (None, an
+        array, or a dict of arrays).
+    n_in : int — samples before the faults.
+    """
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    index: np.ndarray
+    t_true: np.ndarray
+    wild: np.ndarray
+    truth: object
+    n_in: int
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def dropped(self) -> int:
+        """Samples lost."""
+        return self.n_in - len(self.t)
+
+
+def _pairs(x, name: str) -> list[tuple[float, float]]:
+    out = []
+    for item in x:
+        try:
+            a, b = item
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be a list of (time, value) pairs, got {x!r}") from None
+        out.append((_finite(a, name), _finite(b, name)))
+    return out
+
+
+def corrupt(t, gyro, accel, truth=None, rng=None, drop_fraction: float = 0.0,
+            drop_bursts: Sequence = (), gap: Sequence = (), time_jump: Sequence = (),
+            wild_stamp: Sequence = (), drop_samples: Sequence[float] = ()) -> Stream:
+    """The stream ``t, gyro, accel`` with transport faults, as a node would receive it.
+
+    Pure: the inputs are not modified. Times below are original stamps (same epoch as ``t``).
+
+    Parameters
+    ----------
+    t : (N,) s; gyro, accel : (N, 3) — the clean stream (e.g. from :func:`simulate`).
+    truth : None, an (N, ...) array, a dict of (N, ...) arrays, or a :class:`SimResult`
+        (its per-sample arrays, as a dict) — sliced along with the kept samples.
+    rng : np.random.Generator, int seed or None (seed 0) — only drop_fraction draws from it.
+    drop_fraction : each sample is lost independently with this probability.
+    drop_bursts : [(t_start, n)] — lose the n samples from the first one stamped >= t_start.
+    gap : [(t_start, seconds)] — lose every sample stamped in [t_start, t_start + seconds).
+    time_jump : [(t_at, seconds)] — every sample stamped >= t_at gets ``seconds`` added.
+    wild_stamp : [(t_at, offset)] — the first received sample stamped >= t_at keeps its data
+        but its stamp gets ``offset`` added (on top of any time jump); later stamps are normal.
+    drop_samples : [t_at] — lose the one sample first stamped >= t_at.
+
+    Returns
+    -------
+    Stream
+    """
+    t = np.asarray(t, dtype=float)
+    gyro, accel = np.asarray(gyro, dtype=float), np.asarray(accel, dtype=float)
+    n = len(t)
+    if gyro.shape != (n, 3) or accel.shape != (n, 3):
+        raise ValueError(f"gyro and accel must be ({n}, 3), got {gyro.shape}, {accel.shape}")
+    if not isinstance(rng, np.random.Generator):
+        _check_seed(rng)
+        rng = np.random.default_rng(0 if rng is None else rng)
+    frac = _finite(drop_fraction, "drop_fraction")
+    if not 0.0 <= frac <= 1.0:
+        raise ValueError(f"drop_fraction must be within [0, 1], got {drop_fraction!r}")
+    keep = np.ones(n, dtype=bool)
+    if frac > 0.0:
+        keep &= rng.random(n) >= frac
+    for ts, m in _pairs(drop_bursts, "drop_bursts"):
+        k = int(np.searchsorted(t, ts, side="left"))
+        keep[k:k + int(m)] = False
+    for ts, sec in _pairs(gap, "gap"):
+        keep[(t >= ts) & (t < ts + sec)] = False
+    for ts in drop_samples:
+        k = int(np.searchsorted(t, _finite(ts, "drop_samples"), side="left"))
+        if k < n:
+            keep[k] = False
+    idx = np.flatnonzero(keep)
+    t_true = t[idx]
+    stamps = t_true.copy()
+    for ta, sec in _pairs(time_jump, "time_jump"):
+        stamps[t_true >= ta] += sec
+    wild = np.zeros(len(idx), dtype=bool)
+    for ta, off in _pairs(wild_stamp, "wild_stamp"):
+        k = int(np.searchsorted(t_true, ta, side="left"))
+        if k < len(idx):
+            stamps[k] += off
+            wild[k] = True
+    if isinstance(truth, SimResult):
+        truth = {k: getattr(truth, k) for k in _ARRAY_FIELDS if len(getattr(truth, k)) == n}
+    if isinstance(truth, dict):
+        truth = {k: np.asarray(v)[idx] for k, v in truth.items()}
+    elif truth is not None:
+        truth = np.asarray(truth)[idx]
+    return Stream(t=stamps, gyro=gyro[idx].copy(), accel=accel[idx].copy(), index=idx,
+                  t_true=t_true, wild=wild, truth=truth, n_in=n)
