@@ -483,3 +483,50 @@ def test_units_monitor_block_and_samples_agree_across_gaps():
     assert np.allclose(ua.acc, ub.acc, rtol=1e-12, atol=1e-12)
     assert [x[0] for x in ra] == [x[0] for x in rb] and len(ra) == len(rb) == 1
     assert np.allclose([x[1:] for x in ra], [x[1:] for x in rb], rtol=1e-9)
+
+
+def test_one_block_with_every_rejection_reason_equals_one_by_one():
+    """One block holding every rejection reason the per-sample checks know (nonfinite,
+    duplicate_stamp, stamp_backwards, dt_too_small, time_jump, gravity_removed,
+    specific_force_out_of_range, rate_too_high and a deg/s stretch that trips the units
+    check) among long clean runs: Aligner.update(array) (fast path for the clean runs)
+    and the same samples one at a time give identical rejection counters, samples used,
+    attitude (1e-9 rad) and covariance. The bad specific forces and rates sit on the
+    regular stamp grid, so only the block path's own checks can keep them out of a run."""
+    s = simulate(260, 100, 34.0, specs="navigation", sway="car", seed=31)
+    t, w, f = list(s.t), list(s.gyro), list(s.accel)
+    up = np.array([0.0, 0.0, 1.0])
+    # in place, on the stamp grid
+    w[1000] = w[1000] * np.nan                                  # nonfinite
+    f[2000] = f[2000] - 9.79 * f[2000] / np.linalg.norm(f[2000])  # gravity_removed
+    f[2500] = 2.0 * f[2500]                                     # specific_force_out_of_range
+    f[2600] = 0.4 * f[2600]                                     # specific_force_out_of_range
+    w[3000] = w[3000] + 2.0 * up                                # rate_too_high
+    w[3400] = w[3400] * 0.0 + np.inf                            # nonfinite
+    w[5000:9200] = [x / DEG for x in w[5000:9200]]              # deg/s for 42 s
+    # extra samples between the grid points (inserted from the back, indices stay valid)
+    extra = [(12000, lambda k: (t[k - 1], w[k - 1], f[k - 1])),          # duplicate_stamp
+             (12500, lambda k: (t[k - 1] - 0.5, w[k - 1], f[k - 1])),    # stamp_backwards
+             (13000, lambda k: (t[k - 1] + 1e-4, w[k - 1], f[k - 1])),   # dt_too_small
+             (13500, lambda k: (t[k - 1] + 0.005, w[k - 1] * np.nan, f[k - 1]))]
+    for k, make in sorted(extra, key=lambda e: -e[0]):
+        tk, wk, fk = make(k)
+        t.insert(k, tk)
+        w.insert(k, wk)
+        f.insert(k, fk)
+    t, w, f = np.array(t), np.array(w), np.array(f)
+    t[15000:] += 60.0                                           # time_jump
+    a, b = make_aligner(backtrack_time=30.0), make_aligner(backtrack_time=30.0)
+    na = a.update(t, w, f)
+    nb = sum(b.update(t[k], w[k], f[k]) for k in range(len(t)))
+    expected = set(REJECT_REASONS) - {"undecodable"}
+    assert set(b.rejected) == expected, b.rejected
+    assert a.rejected == b.rejected, (a.rejected, b.rejected)
+    assert b.rejected["specific_force_out_of_range"] == 2 and b.rejected["nonfinite"] == 3
+    assert b.rejected["rates_look_like_deg_per_s"] > 1000
+    assert na == nb == a.samples_used == b.samples_used
+    assert a.events == b.events
+    assert not a.units_suspect and not b.units_suspect
+    assert np.abs(attitude_error(a.dcm, b.dcm)).max() < 1e-9
+    assert np.allclose(a.covariance, b.covariance, rtol=1e-8, atol=0)
+    assert a.stage == b.stage == "fine" and a.aligned == b.aligned
