@@ -1635,88 +1635,155 @@ class _Recent:
 class _UnitsMonitor:
     """Detects gyro rates that are not rad/s (deg/s is 57.3x too large).
 
-    Over each window the tilt change predicted by integrating the gyro is compared with the
-    tilt change seen by the accelerometer (direction of the mean specific force in the first
-    and last second). On a quasi-static base they agree to within Earth rate, gyro bias and
-    linear-acceleration effects; rates scaled by 57.3 break that by degrees per second.
+    Statistic: over each window (``units_check_window``, 30 s) every specific-force sample
+    is rotated into the window's start frame with the gyro-integrated rotation B
+    (``u = B f``) and averaged over 1 s bins; the body-frame samples ``f`` are binned the
+    same way. The scatter of a set of bin means is the RMS angle between each of them and
+    their (time-weighted) mean direction.
+
+    - With rad/s rates all u point along gravity (fixed in the start frame) up to linear
+      acceleration ``a / g`` and the slow drift of Earth rate and gyro bias. Linear
+      acceleration shows in the body-frame f just as much (rotation does not change its
+      size), so the u scatter stays below about the f scatter: sway, heave, surge and a
+      shove raise both together.
+    - With rates 57.3x too large B turns the wrong way: the u wander by the rotation error
+      (tens of degrees in sway; on a static base Earth rate's horizontal component x 57.3,
+      about 0.2 deg/s at 34 deg N and 0.12 deg/s at 60 deg N, i.e. a ramp of 3.6-6 deg in
+      30 s, 1-1.7 deg RMS), while f does not move.
+
+    The rates are flagged when ``scatter(u) > RATIO x scatter(f) + allow T / sqrt(12) + TOL``:
+    ``allow T / sqrt(12)`` is the RMS of the largest genuine drift over the window (Earth
+    rate plus 3x the gyro bias spec), TOL a margin for the rest (noise, the second-order
+    terms of sway). A window is discarded without a verdict at a gap or a time jump (an
+    interval above ``gap_ratio`` x nominal, or above ``max_gap``): the rate of one sample
+    cannot be integrated over the hole.
     """
 
-    TOL = 3.0 * DEG
+    RATIO = 2.0
+    TOL = 0.25 * DEG
 
     def __init__(self, al: Aligner):
         self.al = al
         self.window = al.config.units_check_window
         self.allow = OMEGA_IE + 3.0 * al.config.specs.gyro_bias
+        self.bins = int(math.ceil(self.window)) + 1
+        self.last_mismatch_deg = None       # scatter of u of the last judged window, deg
+        self.last_limit_deg = None          # and the limit it was compared with, deg
         self._start()
 
     def _start(self):
         self.T = 0.0
         self.B = np.eye(3)
-        self.f_head = np.zeros(3)
-        self.f_tail = np.zeros(3)
+        self.acc = np.zeros((self.bins, 7))     # per 1 s bin: sum dt, sum f dt, sum u dt
+
+    def _gap(self, dt) -> float:
+        """Largest interval that is not a gap (the Aligner's rule; max_gap while the
+        nominal interval is not known yet)."""
+        c, nom = self.al.config, self.al.nominal_dt
+        return c.max_gap if nom is None else min(c.gap_ratio * nom, c.max_gap)
 
     def add_block(self, dts, w, f) -> int:
-        """Samples of a clean run (intervals within 40 % of nominal). Windows that close
-        inside it are judged as :meth:`add` would; the block stops before the closing
-        sample of a window that would flag the rates (that sample goes through
-        :meth:`add`). Returns how many samples were taken."""
+        """Samples of a run. Windows that close inside it are judged as :meth:`add` would
+        (a gap or a non-positive interval discards the window, as there); the block stops
+        before the closing sample of a window that would flag the rates (that sample goes
+        through :meth:`add`). Returns how many samples were taken."""
+        dts = np.asarray(dts, dtype=float)
+        n = len(dts)
+        bad = np.flatnonzero(~((dts > 0.0) & (dts <= self._gap(None))))
+        k = 0
+        for b in list(bad) + [n]:
+            m = self._add_run(dts[k:b], w[k:b], f[k:b])
+            if m < b - k:
+                return k + m
+            if b < n:
+                self._start()                 # a gap: no verdict, a new window after it
+            k = b + 1
+        return n
+
+    def _add_run(self, dts, w, f) -> int:
+        """add_block for a run without gaps."""
         k, n = 0, len(dts)
         while k < n:
-            T = self.T + np.cumsum(dts[k:])
+            # window times as add() sums them (one addition after the other)
+            T = np.cumsum(np.concatenate([[self.T], dts[k:]]))[1:]
             closing = np.nonzero(T >= self.window)[0]
             end = k + int(closing[0]) + 1 if len(closing) else n
             state = self._accumulated(dts[k:end], w[k:end], f[k:end], T[:end - k])
             if not len(closing):
-                self.B, self.f_head, self.f_tail, self.T = state
+                self.B, self.acc, self.T = state
                 return n
             verdict = self._verdict(*state)
             if verdict is not None and verdict[0] and not self.al.units_suspect:
                 if end - 1 > k:                   # everything before the closing sample
-                    self.B, self.f_head, self.f_tail, self.T = self._accumulated(
+                    self.B, self.acc, self.T = self._accumulated(
                         dts[k:end - 1], w[k:end - 1], f[k:end - 1], T[:end - 1 - k])
                 return end - 1
             if verdict is not None:
-                self.last_mismatch_deg = verdict[1] / DEG
+                self.last_mismatch_deg, self.last_limit_deg = verdict[1] / DEG, verdict[2] / DEG
             self._start()
             k = end
         return n
 
     def _accumulated(self, dts, w, f, T):
-        """(B, f_head, f_tail, T) after samples with window times T (not stored)."""
-        B = self.B @ dcm_from_quat(total_rotation(dts, w))
-        fd = f * dts[:, None]
-        return (B, self.f_head + fd[T <= 1.0].sum(0),
-                self.f_tail + fd[T > self.window - 1.0].sum(0), float(T[-1]))
+        """(B, bin sums, T) after samples with window times T (not stored)."""
+        from .preint import prefix_rotations
+        q = prefix_rotations(dts[None], w[None])       # exp(w_1 dt_1) ... exp(w_k dt_k)
+        Q = dcm_from_quat(np.stack([c[0] for c in q], axis=-1))
+        u = np.einsum("ij,kjl,kl->ki", self.B, Q, f)
+        acc = self.acc.copy()
+        j = np.minimum(T.astype(int), self.bins - 1)
+        for col, x in ((0, dts[:, None]), (1, f * dts[:, None]), (4, u * dts[:, None])):
+            for i in range(x.shape[1]):
+                acc[:, col + i] += np.bincount(j, x[:, i], minlength=self.bins)
+        return self.B @ Q[-1], acc, float(T[-1])
 
-    def _verdict(self, B, f_head, f_tail, T):
-        """(flag the rates?, mismatch angle rad) of a closed window; None without data."""
-        if not (np.linalg.norm(f_head) > 0 and np.linalg.norm(f_tail) > 0):
+    @staticmethod
+    def _scatter(m: np.ndarray, wt: np.ndarray) -> float:
+        """RMS angle (rad, weights wt) between vectors m (k, 3) and their weighted mean."""
+        d = wt @ m
+        d = d / np.linalg.norm(d)
+        ang = np.arctan2(np.linalg.norm(np.cross(m, d), axis=1), m @ d)
+        return math.sqrt(float(wt @ (ang * ang)) / float(wt.sum()))
+
+    def _verdict(self, B, acc, T):
+        """(flag the rates?, scatter of u, limit), rad, of a closed window; None without
+        data (fewer than two bins, or a zero mean)."""
+        wt = acc[:, 0]
+        use = wt > 0.0
+        if use.sum() < 2:
             return None
-        a = f_head / np.linalg.norm(f_head)
-        b = f_tail / np.linalg.norm(f_tail)
-        err = math.acos(max(-1.0, min(1.0, float((B.T @ a) @ b))))
-        return err > self.allow * T + self.TOL, err
+        wt = wt[use]
+        mf = acc[use, 1:4] / wt[:, None]
+        mu = acc[use, 4:7] / wt[:, None]
+        if not (np.linalg.norm(wt @ mf) > 0.0 and np.linalg.norm(wt @ mu) > 0.0):
+            return None
+        su, sf = self._scatter(mu, wt), self._scatter(mf, wt)
+        limit = self.RATIO * sf + self.allow * T / math.sqrt(12.0) + self.TOL
+        return su > limit, su, limit
 
     def add(self, dt, w, f):
-        """One sample; returns exp(w dt), which the filter can reuse (None if skipped)."""
-        if not 0.0 < dt <= self.window:
+        """One sample; returns exp(w dt), which the filter can reuse (None if skipped: a
+        gap or a time jump, which also discards the window)."""
+        if not 0.0 < dt <= self._gap(None):
+            self._start()
             return None
         dR = so3_exp(w * dt)
         self.B = self.B @ dR
         self.T += dt
-        if self.T <= 1.0:
-            self.f_head += f * dt
-        if self.T > self.window - 1.0:
-            self.f_tail += f * dt
+        j = min(int(self.T), self.bins - 1)
+        a = self.acc[j]
+        a[0] += dt
+        a[1:4] += f * dt
+        a[4:7] += (self.B @ f) * dt
         if self.T >= self.window:
-            verdict = self._verdict(self.B, self.f_head, self.f_tail, self.T)
+            verdict = self._verdict(self.B, self.acc, self.T)
             if verdict is not None:
-                bad, err = verdict
+                bad, su, limit = verdict
                 if bad and not self.al.units_suspect:
                     self.al.units_suspect = True
                     self.al._restart_filter()
                 elif not bad:
                     self.al.units_suspect = False
-                self.last_mismatch_deg = err / DEG
+                self.last_mismatch_deg, self.last_limit_deg = su / DEG, limit / DEG
             self._start()
         return dR

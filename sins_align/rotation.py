@@ -264,13 +264,19 @@ def rpy_from_dcm(C: np.ndarray) -> np.ndarray:
 def heading_from_dcm(C: np.ndarray) -> np.ndarray:
     """True heading of the body x axis, rad, clockwise from North, in [0, 2 pi).
 
-    Uses the horizontal projection of the body x axis; when that axis is vertical the
-    heading of the body y axis minus 90 deg is used instead, so the result is always defined.
+    Everywhere ``heading = 90 deg - yaw`` (mod 360 deg) with the yaw of :func:`rpy_from_dcm`.
+    Off the poles of pitch that is the azimuth of the horizontal projection of the body x
+    axis. When that axis is vertical (|pitch| = 90 deg, the same test as rpy_from_dcm's
+    gimbal lock) rpy_from_dcm puts roll to 0 and the whole rotation about the vertical into
+    yaw; the body y axis is then horizontal and points 90 deg to the left of where the x
+    axis points when the nose is lowered back to level (``C = Rz(yaw) Ry(+-90 deg)``: body y
+    at azimuth -yaw, so heading = heading(body y) + 90 deg). With roll 0 the result is the
+    limit of the heading as the pitch approaches +-90 deg.
     """
     C = np.asarray(C, dtype=float)
     e, n = C[..., 0, 0], C[..., 1, 0]
     vertical = np.hypot(e, n) < 1e-9
-    h = np.where(vertical, np.arctan2(C[..., 0, 1], C[..., 1, 1]) - 0.5 * np.pi,
+    h = np.where(vertical, np.arctan2(C[..., 0, 1], C[..., 1, 1]) + 0.5 * np.pi,
                  np.arctan2(e, n))
     return np.mod(h, 2.0 * np.pi)
 

@@ -11,7 +11,7 @@ import pytest
 from sins_align.estimator import JUMP_CONFIRM, REJECT_REASONS, Aligner, AlignConfig, AlignmentFilter
 from sins_align.kalman import nis
 from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, so3_log
-from sins_align.sim import simulate
+from sins_align.sim import SwayProfile, simulate
 from sins_align.specs import DEG, DPH, UG, limit_error
 
 PAPER_BIAS = dict(gyro_bias=np.full(3, 0.01 * DPH), accel_bias=np.full(3, 100 * UG))
@@ -388,3 +388,183 @@ def test_one_run_nis_bookkeeping_equals_the_stacked_one():
             assert one.nis_mean[0] == pytest.approx(float(nis(z.T, Sinv)[0]) / 3.0, rel=1e-12)
         assert one.reinflations[0] == two.reinflations[0]
     assert one.reinflations[0] >= 1            # the misfit did re-inflate both
+
+
+# ---------------------------------------------------------------- units check (deg/s)
+def ship_sway(lever=(3.0, -2.0, -5.0)):
+    """A moored ship: roll 4 deg at 9 s, pitch 2 deg at 7 s, yaw 0.5 deg at 11 s, heave
+    0.5 m at 8 s, surge 1 m at 5 s and sway 0.5 m at 15 s, IMU off the rotation centre."""
+    return SwayProfile(name="ship4", ang_amp=(4 * DEG, 2 * DEG, 0.5 * DEG),
+                       ang_freq=(1 / 9, 1 / 7, 1 / 11), lin_amp=(1.0, 0.5, 0.5),
+                       lin_freq=(1 / 5, 1 / 15, 1 / 8), lever_arm=lever)
+
+
+def with_shoves(t, accel, starts, axis, dur=0.5, peak=3.0):
+    """accel plus shoves: the acceleration of v = V sin^2(pi s / dur) (peak 3 m/s^2, the
+    velocity back to zero after dur), along a body axis, at each start time."""
+    acc = accel.copy()
+    for t0 in starts:
+        s = t - t0
+        m = (s > 0) & (s < dur)
+        acc[m] += peak * np.sin(2 * np.pi * s[m] / dur)[:, None] * np.asarray(axis)
+    return acc
+
+
+def units_verdicts(al):
+    """Record (flagged, scatter deg, limit deg) of every window the aligner's check judges."""
+    rec = []
+    judge = al._units._verdict
+
+    def spy(*a):
+        r = judge(*a)
+        if r is not None:
+            rec.append((bool(r[0]), r[1] / DEG, r[2] / DEG))
+        return r
+    al._units._verdict = spy
+    return rec
+
+
+@pytest.mark.parametrize("lat", [34.0, 60.0])
+@pytest.mark.parametrize("case", ["ship", "ship+shoves", "static+shoves", "ship+gap",
+                                  "ship+jump"])
+def test_rad_per_s_not_flagged_under_linear_acceleration_gaps_and_jumps(lat, case):
+    """Genuine rad/s data is never flagged: ship sway with heave, surge and sway (whose
+    accelerations tilt the specific force by up to 9 deg), 0.5 s shoves of 3 m/s^2 that
+    straddle the 1 s bins, a 3 s hole in the data (a gap) and a 60 s time jump. The rotated
+    scatter stays below half the limit in every window (measured: 6.1 deg against a limit
+    of 13-14 deg in the ship; 0.7 deg against 1.7 deg at a shove on a static base)."""
+    s = simulate(150, 100, lat, specs="navigation",
+                 sway="none" if case == "static+shoves" else ship_sway(), seed=21)
+    t, w, f = s.t, s.gyro, s.accel
+    if "shoves" in case:
+        f = with_shoves(t, f, (20.75, 47.5, 95.9, 121.3), (0.0, 1.0, 0.0) if "ship" in case
+                        else (1.0, 0.0, 0.0))
+    if case == "ship+gap":
+        keep = np.ones(len(t), bool)
+        keep[4000:4300] = False
+        t, w, f = t[keep], w[keep], f[keep]
+    if case == "ship+jump":
+        t = t.copy()
+        t[8000:] += 60.0
+    for one_by_one in (False, True):
+        al = Aligner(AlignConfig(latitude_deg=lat))
+        rec = units_verdicts(al)
+        if one_by_one:
+            for k in range(len(t)):
+                al.update(t[k], w[k], f[k])
+        else:
+            al.update(t, w, f)
+        assert "rates_look_like_deg_per_s" not in al.rejected, (case, rec)
+        assert len(rec) >= 3 and all(su < 0.6 * lim for _, su, lim in rec), rec
+        if case == "ship+gap":
+            assert al.events["gap"] == 1
+        if case == "ship+jump":
+            assert al.rejected["time_jump"] == 1
+
+
+@pytest.mark.parametrize("lat", [34.0, 60.0])
+@pytest.mark.parametrize("grade", ["navigation", "tactical", "consumer"])
+@pytest.mark.parametrize("sway", ["static", "ship"])
+def test_deg_per_s_flagged_within_one_window(lat, grade, sway):
+    """Rates in deg/s are flagged when the first window closes (30 s) and rejected from
+    then on, on a static base (only Earth rate and the gyro bias turn the wrong way:
+    measured 1.0 deg RMS at 60 deg N, 1.7 deg at 34 deg N against a limit of 0.3 deg for
+    navigation and tactical grades; tens of degrees against 2.9 deg with a consumer gyro
+    bias of the spec's size) and in ship sway (72-77 deg against 13-16 deg). Tactical and
+    consumer: a bias of the spec's size on two axes, half of it on the third. (A consumer
+    gyro whose true horizontal rate, Earth rate plus bias, is below about 20 deg/h cannot
+    be told from a rad/s gyro with the 3-sigma bias the check allows.)"""
+    b = {"navigation": None, "tactical": 1.0 * DPH, "consumer": 0.1 * DEG}[grade]
+    s = simulate(60, 100, lat, specs=grade, sway="none" if sway == "static" else ship_sway(),
+                 seed=22, gyro_bias=None if b is None else (b, -b, 0.5 * b))
+    al = Aligner(AlignConfig(latitude_deg=lat, specs=grade))
+    rec = units_verdicts(al)
+    al.update(s.t, s.gyro / DEG, s.accel)
+    window = al.config.units_check_window
+    n_after = int(np.sum(s.t > s.t[0] + window + 1e-6))
+    assert al.rejected["rates_look_like_deg_per_s"] >= n_after - 1, (al.rejected, rec)
+    assert al.status == "fault" and not al.aligned
+    su, lim = rec[0][1:]
+    assert su > 2.0 * lim, rec
+
+
+def test_deg_per_s_after_a_gap_flagged_within_one_window_after_it():
+    """A gap discards the window (no verdict); the next window, started after the gap,
+    flags deg/s rates when it closes."""
+    s = simulate(80, 100, 60.0, specs="navigation", seed=23)
+    keep = np.ones(len(s.t), bool)
+    keep[2000:2300] = False                     # a 3 s hole at 20 s, inside the first window
+    t, w, f = s.t[keep], s.gyro[keep] / DEG, s.accel[keep]
+    al = Aligner(AlignConfig(latitude_deg=60.0))
+    al.update(t, w, f)
+    # the first window restarts at 23 s and closes at 53 s; everything after is rejected
+    n_after = int(np.sum(t > 23.0 + al.config.units_check_window + 0.02))
+    assert al.rejected["rates_look_like_deg_per_s"] >= n_after
+    assert al.rejected["rates_look_like_deg_per_s"] <= int(np.sum(t > 50.0))
+
+
+def test_units_monitor_block_and_samples_agree_across_gaps():
+    """_UnitsMonitor.add_block restarts at a gap or a non-positive interval just as add()
+    does, and keeps the same window state (time, rotation, bin sums) to rounding."""
+    s = simulate(75, 100, 34.0, specs="navigation", sway=ship_sway(), seed=24)
+    dts = np.diff(s.t, prepend=0.0)
+    dts[1500] = 3.0                              # a gap
+    dts[3300] = 0.0                              # a repeated stamp
+    a, b = Aligner(AlignConfig(latitude_deg=34.0, rate_hz=100.0)), \
+        Aligner(AlignConfig(latitude_deg=34.0, rate_hz=100.0))
+    ra, rb = units_verdicts(a), units_verdicts(b)
+    assert a._units.add_block(dts, s.gyro, s.accel) == len(dts)
+    for k in range(len(dts)):
+        b._units.add(dts[k], s.gyro[k], s.accel[k])
+    ua, ub = a._units, b._units
+    assert ua.T == ub.T and np.abs(ua.B - ub.B).max() < 1e-13
+    assert np.allclose(ua.acc, ub.acc, rtol=1e-12, atol=1e-12)
+    assert [x[0] for x in ra] == [x[0] for x in rb] and len(ra) == len(rb) == 1
+    assert np.allclose([x[1:] for x in ra], [x[1:] for x in rb], rtol=1e-9)
+
+
+def test_one_block_with_every_rejection_reason_equals_one_by_one():
+    """One block holding every rejection reason the per-sample checks know (nonfinite,
+    duplicate_stamp, stamp_backwards, dt_too_small, time_jump, gravity_removed,
+    specific_force_out_of_range, rate_too_high and a deg/s stretch that trips the units
+    check) among long clean runs: Aligner.update(array) (fast path for the clean runs)
+    and the same samples one at a time give identical rejection counters, samples used,
+    attitude (1e-9 rad) and covariance. The bad specific forces and rates sit on the
+    regular stamp grid, so only the block path's own checks can keep them out of a run."""
+    s = simulate(260, 100, 34.0, specs="navigation", sway="car", seed=31)
+    t, w, f = list(s.t), list(s.gyro), list(s.accel)
+    up = np.array([0.0, 0.0, 1.0])
+    # in place, on the stamp grid
+    w[1000] = w[1000] * np.nan                                  # nonfinite
+    f[2000] = f[2000] - 9.79 * f[2000] / np.linalg.norm(f[2000])  # gravity_removed
+    f[2500] = 2.0 * f[2500]                                     # specific_force_out_of_range
+    f[2600] = 0.4 * f[2600]                                     # specific_force_out_of_range
+    w[3000] = w[3000] + 2.0 * up                                # rate_too_high
+    w[3400] = w[3400] * 0.0 + np.inf                            # nonfinite
+    w[5000:9200] = [x / DEG for x in w[5000:9200]]              # deg/s for 42 s
+    # extra samples between the grid points (inserted from the back, indices stay valid)
+    extra = [(12000, lambda k: (t[k - 1], w[k - 1], f[k - 1])),          # duplicate_stamp
+             (12500, lambda k: (t[k - 1] - 0.5, w[k - 1], f[k - 1])),    # stamp_backwards
+             (13000, lambda k: (t[k - 1] + 1e-4, w[k - 1], f[k - 1])),   # dt_too_small
+             (13500, lambda k: (t[k - 1] + 0.005, w[k - 1] * np.nan, f[k - 1]))]
+    for k, make in sorted(extra, key=lambda e: -e[0]):
+        tk, wk, fk = make(k)
+        t.insert(k, tk)
+        w.insert(k, wk)
+        f.insert(k, fk)
+    t, w, f = np.array(t), np.array(w), np.array(f)
+    t[15000:] += 60.0                                           # time_jump
+    a, b = make_aligner(backtrack_time=30.0), make_aligner(backtrack_time=30.0)
+    na = a.update(t, w, f)
+    nb = sum(b.update(t[k], w[k], f[k]) for k in range(len(t)))
+    expected = set(REJECT_REASONS) - {"undecodable"}
+    assert set(b.rejected) == expected, b.rejected
+    assert a.rejected == b.rejected, (a.rejected, b.rejected)
+    assert b.rejected["specific_force_out_of_range"] == 2 and b.rejected["nonfinite"] == 3
+    assert b.rejected["rates_look_like_deg_per_s"] > 1000
+    assert na == nb == a.samples_used == b.samples_used
+    assert a.events == b.events
+    assert not a.units_suspect and not b.units_suspect
+    assert np.abs(attitude_error(a.dcm, b.dcm)).max() < 1e-9
+    assert np.allclose(a.covariance, b.covariance, rtol=1e-8, atol=0)
+    assert a.stage == b.stage == "fine" and a.aligned == b.aligned

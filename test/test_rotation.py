@@ -85,3 +85,38 @@ def test_attitude_error_convention():
     Ct = r.so3_exp(phi) @ C
     got = r.attitude_error(Ct, C)
     assert np.abs(r.so3_exp(got) @ C - Ct).max() < 1e-13
+
+
+@pytest.mark.parametrize("roll", [0.0, 25.0, -160.0])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_heading_at_and_near_the_poles_of_pitch(roll, sign):
+    """heading = 90 deg - yaw (rpy_from_dcm) mod 360 for pitch swept up to exactly +-90 deg;
+    with roll 0 also equal to the direct construction 90 deg - yaw (continuous at the pole).
+    The sign of the offset at the pole (x axis vertical) matters: heading(y) - 90 deg fails."""
+    pitches = sign * np.concatenate([np.linspace(0.0, 89.0, 90),
+                                     90.0 - np.logspace(0, -12, 25), [90.0]])
+    for yaw in (30.0, -100.0, 0.0, 179.0):
+        rpy = np.stack([np.full_like(pitches, roll), pitches, np.full_like(pitches, yaw)], -1)
+        C = r.dcm_from_rpy(rpy * DEG)
+        h = r.heading_from_dcm(C) / DEG
+        assert ((h >= 0) & (h < 360)).all()
+        ref = 90.0 - r.rpy_from_dcm(C)[:, 2] / DEG
+        d = (h - ref + 180.0) % 360.0 - 180.0
+        assert np.abs(d).max() < 1e-6, (yaw, pitches[np.argmax(np.abs(d))])
+        # single matrices take the same route
+        assert r.heading_from_dcm(C[-1]) / DEG == pytest.approx(h[-1], abs=1e-12)
+        if roll == 0.0:
+            # the direct construction: body x at azimuth 90 - yaw wherever it is not vertical,
+            # and the same value (the limit) at the pole
+            d = (h - (90.0 - yaw) + 180.0) % 360.0 - 180.0
+            assert np.abs(d).max() < 1e-6, (yaw, pitches[np.argmax(np.abs(d))])
+
+
+def test_heading_pole_against_body_y_axis():
+    """At exactly pitch +90 deg (x down) and -90 deg (x up) with yaw 30 deg: heading 60 deg,
+    and the body y axis (horizontal) points at heading - 90 deg."""
+    for p in (90.0, -90.0):
+        C = r.dcm_from_rpy(np.array([0.0, p, 30.0]) * DEG)
+        assert r.heading_from_dcm(C) / DEG == pytest.approx(60.0, abs=1e-9)
+        y = C[:, 1]
+        assert np.degrees(np.arctan2(y[0], y[1])) % 360 == pytest.approx(330.0, abs=1e-9)
