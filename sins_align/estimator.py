@@ -477,8 +477,7 @@ class AlignmentFilter:
                 vs[...] = 0.0
             else:
                 self._innovate(v, Kg, Sinv, out=x)
-            if self._gated is not None or self._absorb is not None or self._inflate is not None:
-                self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
+            self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
             if n == 1:                                        # nine floats
                 R = np.array(so3_exp_entries(*x[:3, 0].tolist()))
@@ -734,8 +733,7 @@ class AlignmentFilter:
         prior = (self.P, self.S)
         K, Sinv = self._gain(H, scale)
         x = self._innovate(z.T, K, Sinv)
-        if self._gated is not None or self._absorb is not None or self._inflate is not None:
-            self._settle(lambda: prior, H, scale, x)
+        self._settle(lambda: prior, H, scale, x)
         self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T)
 
     def _gain(self, H, scale: float):
@@ -838,37 +836,26 @@ class AlignmentFilter:
         covariance (``prior()`` returns it: P, S of the propagation alone); runs that absorb
         a lasting velocity error are updated again from that prior with the velocity
         variance grown by the innovation (``x`` rewritten); runs whose gating persisted are
-        re-inflated (fine pass)."""
+        re-inflated (fine pass). Nothing to do (the usual case): returns at once."""
         g, ab = self._gated, self._absorb
         if g is not None or ab is not None:
-            shape = (self.n, 6, 6)
-            postP, postS = self.P, self.S
-            Pp, Sp = prior()
-            if ab is not None:
-                z = self._z
-                P = np.broadcast_to(Pp, shape).copy()
-                i = np.arange(3, 6)
-                P[:, i, i] += np.where(ab[:, None], (z * z).T, 0.0)
-                self.P, self.S = P, np.broadcast_to(Sp, shape).copy()
-                K, _ = self._gain(H, scale)
-                xa = np.einsum("nij,jn->in", K, z)
-                x[:, ab] = xa[:, ab]
-                Pa, Sa = self.P, self.S
-                keep = ~ab if g is None else ~(ab | g)
-                P = np.where(keep[:, None, None], np.broadcast_to(postP, shape), Pa)
-                S = np.where(keep[:, None, None], np.broadcast_to(postS, shape), Sa)
-                if g is not None:
-                    P = np.where(g[:, None, None], np.broadcast_to(Pp, shape), P)
-                    S = np.where(g[:, None, None], np.broadcast_to(Sp, shape), S)
-                self.P, self.S, self._node = P, S, None
-            elif g.all():
-                self.P, self.S = Pp, Sp
-            else:
-                P, S = (np.broadcast_to(q, shape).copy() for q in (postP, postS))
-                P[g] = np.broadcast_to(Pp, shape)[g]
-                S[g] = np.broadcast_to(Sp, shape)[g]
-                self.P, self.S, self._node = P, S, None
             self._gated = self._absorb = None
+            post = self.P, self.S
+            Pp, Sp = prior()
+            if ab is None and g.all():      # every run coasts: the prior, still shared (the
+                self.P, self.S = Pp, Sp     # fast path's prior() set the cache node to it)
+            else:
+                shape = (self.n, 6, 6)
+                P, S = (np.broadcast_to(q, shape) for q in post)
+                if g is not None:
+                    P, S = _where_runs(g, Pp, P), _where_runs(g, Sp, S)
+                if ab is not None:
+                    self.P = _grow_velocity(np.broadcast_to(Pp, shape), ab, self._z)
+                    self.S = np.broadcast_to(Sp, shape).copy()
+                    K, _ = self._gain(H, scale)
+                    x[:, ab] = np.einsum("nij,jn->in", K, self._z)[:, ab]
+                    P, S = _where_runs(ab, self.P, P), _where_runs(ab, self.S, S)
+                self.P, self.S, self._node = P, S, None
         if self._inflate is not None:
             mask, self._inflate = self._inflate, None
             self._reinflate(mask, self._z)
@@ -886,8 +873,7 @@ class AlignmentFilter:
         S = np.broadcast_to(self.S, (self.n, 6, 6)).copy()
         P[mask] = self.P0[0]
         if z is not None:
-            i = np.arange(3, 6)
-            P[:, i, i] += np.where(mask[:, None], (z * z).T, 0.0)
+            P = _grow_velocity(P, mask, z)
         S[mask] = 0.0
         self.P, self.S = P, S
         self._node = None
@@ -916,15 +902,15 @@ class AlignmentFilter:
         self.stage = "fine"
         self.backtracked = True
         self._buf = None
-        if not (self.fast_backtrack and c.model == "constant" and len(dt)):
-            for k in range(len(dt)):
-                self._advance(float(dt[k]), w[k], f[k], float(gap[k]), None, tuple(hole[k]))
-            return
-        # runs of regular samples (no gap, interval within 15 % of the median) take the fast
-        # path, the others go one by one: the callback never stalls on a few odd stamps
-        med = float(np.median(dt))
-        odd = (gap > 0.0) | (hole > 0.0).any(axis=1) | (np.abs(dt - med) > 0.15 * med)
-        for a, b, regular in _runs(odd, FAST_MIN_BLOCK):
+        # runs of regular samples (no gap or hole, interval within 15 % of the median) take
+        # the fast path, the others go one by one: the callback never stalls on a few odd
+        # stamps (without the fast path, everything goes one by one)
+        pieces = [(0, len(dt), False)]
+        if self.fast_backtrack and c.model == "constant" and len(dt):
+            med = float(np.median(dt))
+            odd = (gap > 0.0) | (hole > 0.0).any(axis=1) | (np.abs(dt - med) > 0.15 * med)
+            pieces = _runs(odd, FAST_MIN_BLOCK)
+        for a, b, regular in pieces:
             if not regular:
                 for k in range(a, b):
                     self._advance(float(dt[k]), w[k], f[k], float(gap[k]), None, tuple(hole[k]))
@@ -1460,6 +1446,20 @@ class Aligner:
         }
 
 
+def _where_runs(mask: np.ndarray, a, b) -> np.ndarray:
+    """(N, 6, 6): ``a`` for the runs in ``mask``, ``b`` for the others (either (1|N, 6, 6))."""
+    return np.where(mask[:, None, None], a, b)
+
+
+def _grow_velocity(P: np.ndarray, mask: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """P (N, 6, 6) with the velocity variances of the runs in ``mask`` grown by z^2 (z (3, N),
+    an innovation the model could not explain): a new array."""
+    P = P.copy()
+    i = np.arange(3, 6)
+    P[:, i, i] += np.where(mask[:, None], (z * z).T, 0.0)
+    return P
+
+
 def _runs(odd: np.ndarray, least: int):
     """(start, end, regular) pieces covering ``odd``'s indices in order: runs of at least
     ``least`` samples that are not odd are regular, everything between them is not."""
@@ -1584,10 +1584,25 @@ class _Recent:
         """Rows (dt, w, f) of the last samples spanning at most ``seconds``, oldest first."""
         if self._n == 0:
             return self._a[:0]
-        idx = (self._i - 1 - np.arange(self._n)) % self.SIZE          # newest first
-        rows = self._a[idx]
-        k = int(np.searchsorted(np.cumsum(rows[:, 0]), seconds, side="right"))
-        return rows[:max(1, k)][::-1]
+        dt = self._a[self._i - 1, 0]
+        # read back only as far as the span needs: guessed from the newest interval, doubled
+        # while it falls short
+        m = self._n if dt <= 0.0 else min(self._n, int(1.25 * seconds / dt) + 2)
+        while True:
+            rows = self._tail(m)
+            span = np.cumsum(rows[::-1, 0])
+            if m == self._n or span[-1] > seconds:
+                break
+            m = min(2 * m, self._n)
+        k = max(1, int(np.searchsorted(span, seconds, side="right")))
+        return rows[m - k:]
+
+    def _tail(self, m: int) -> np.ndarray:
+        """The newest m rows, oldest first (two slices when they wrap round the ring)."""
+        a, i = self._a, self._i
+        if m <= i:
+            return a[i - m:i]
+        return np.concatenate((a[self.SIZE - (m - i):], a[:i]))
 
     def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
         """Mean specific force over the last ``seconds`` (None before any sample)."""

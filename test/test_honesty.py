@@ -16,7 +16,7 @@ import pytest
 
 from sins_align.estimator import AlignConfig, Aligner, AlignmentFilter
 from sins_align.honesty import CASES, run_case
-from sins_align.rotation import dcm_from_quat, dcm_from_rpy, so3_log
+from sins_align.rotation import dcm_from_quat, dcm_from_rpy, rpy_from_dcm, so3_log
 from sins_align.sim import simulate
 from sins_align.specs import DEG
 
@@ -71,7 +71,7 @@ def test_any_start_is_honest_in_the_first_30_s(seed):
     C0 = dcm_from_quat(q / np.linalg.norm(q))
     truth = (1.0, -2.0, 30.0)
     s = simulate(30.0, rate=100.0, lat_deg=34.0, rpy_deg=truth, seed=seed)
-    rpy0 = np.degrees(_rpy(C0))
+    rpy0 = np.degrees(rpy_from_dcm(C0))
     al = Aligner(AlignConfig(latitude_deg=34.0, initial_rpy_deg=tuple(rpy0)))
     worst = 0.0
     for k in range(0, len(s.t), 10):
@@ -84,11 +84,6 @@ def test_any_start_is_honest_in_the_first_30_s(seed):
         worst = max(worst, tilt / min(std[0], std[1]))
         assert std[2] >= 90.0 * DEG * 0.999
     assert worst <= 3.0, worst
-
-
-def _rpy(C):
-    from sins_align.rotation import rpy_from_dcm
-    return rpy_from_dcm(C)
 
 
 def test_aligned_flag_is_exactly_its_criterion():
