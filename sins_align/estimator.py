@@ -32,11 +32,12 @@ import numpy as np
 
 from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
 from .kalman import affine_scan, discretize, inv3, joseph_update, nis, riccati_steps
+from .inertial import inertial_alignment
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
 from .preint import earth_poly, open_loop_velocity, preintegrate, scratch_array, total_rotation
 from .rotation import (dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm,
-                       so3_exp, so3_exp_entries)
+                       so3_exp, so3_exp_entries, so3_log)
 from .specs import DEG, SensorSpecs, grade_specs, limit_covariance
 
 #: Reasons a sample can be rejected. A rejected sample never touches the filter state.
@@ -253,15 +254,23 @@ class AlignmentFilter:
         self._B = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
         self.reinflations = np.zeros(self.n, dtype=int)
         self.gated_updates = np.zeros(self.n, dtype=int)
+        self.limit_std = np.sqrt(np.diag(limit_covariance(self.lat, c.specs, self.g)))
+        self.started_inertial = np.zeros(self.n, dtype=bool)   # fine pass from sins_align.inertial
 
     # ------------------------------------------------------------------ state
-    def _start_pass(self, C0, fine: bool, std, R):
-        lv, hd = std[0] * DEG, std[1] * DEG
-        P = np.zeros((1, 6, 6))
-        P[0, :3, :3] = np.diag([lv ** 2, lv ** 2, hd ** 2])
-        P[0, 3:, 3:] = np.eye(3) * self.config.initial_velocity_std ** 2
+    def _start_pass(self, C0, fine: bool, std, R, v0=None):
+        """``std``: (level, heading) deg shared by all runs, or the initial (attitude E, N,
+        U rad; velocity E, N, U m/s) std per run, (N, 6). ``v0``: initial velocity (N, 3)."""
+        if isinstance(std, np.ndarray) and std.ndim == 2:
+            P = np.zeros((len(std), 6, 6))
+            P[:, range(6), range(6)] = std ** 2
+        else:
+            lv, hd = std[0] * DEG, std[1] * DEG
+            P = np.zeros((1, 6, 6))
+            P[0, :3, :3] = np.diag([lv ** 2, lv ** 2, hd ** 2])
+            P[0, 3:, 3:] = np.eye(3) * self.config.initial_velocity_std ** 2
         self.C = np.array(C0, dtype=float)
-        self.v = np.zeros((self.n, 3))
+        self.v = np.zeros((self.n, 3)) if v0 is None else np.array(v0, dtype=float)
         self.P0 = P
         self.P = P                     # noise covariance, (1|N, 6, 6): what the gain uses
         self.S = np.zeros((1, 6, 6))   # sensitivity of the error to ENU biases [accel; gyro]
@@ -871,7 +880,7 @@ class AlignmentFilter:
         """
         P = np.broadcast_to(self.P, (self.n, 6, 6)).copy()
         S = np.broadcast_to(self.S, (self.n, 6, 6)).copy()
-        P[mask] = self.P0[0]
+        P[mask] = np.broadcast_to(self.P0, P.shape)[mask]
         if z is not None:
             P = _grow_velocity(P, mask, z)
         S[mask] = 0.0
@@ -893,11 +902,12 @@ class AlignmentFilter:
         c = self.config
         C0 = so3_exp(self.w_ie * self.t_int) @ self.C @ np.swapaxes(self._B, -1, -2)
         dt, w, f, gap, hole = self._buf.arrays()
+        C0, std0, v0 = self._fine_start(C0, dt, w, f)
         r_std, self.fine_period = self._sway_velocity_std(C0, dt, w, f)
         self.fine_R_std = r_std
         R = np.zeros((self.n, 3, 3))
         R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
-        self._start_pass(C0, fine=True, std=c.fine_initial_std_deg, R=R)
+        self._start_pass(C0, fine=True, std=std0, R=R, v0=v0)
         self._steady_start = (self.P.copy(), self.S.copy())
         self.stage = "fine"
         self.backtracked = True
@@ -919,6 +929,32 @@ class AlignmentFilter:
             mean = float(d.mean())
             uniform = np.all(np.abs(d - mean) <= 1e-9 * mean)
             self._advance_block(mean if uniform else d, w[a:b], f[a:b])
+
+    def _fine_start(self, C0, dt, w, f):
+        """Where the fine pass starts: attitude (N, 3, 3), initial std (N, 6), velocity (N, 3).
+
+        The coarse pass's estimate carried back (``C0``) is checked against the inertial-frame
+        alignment of the same buffer (:mod:`sins_align.inertial`, immune to sway): when it
+        lies outside 3 sigma of that solution on some axis (the coarse pass was thrown off by
+        sway), the fine pass starts from the inertial-frame attitude instead. The initial
+        std is the configured ``fine_initial_std_deg``, widened to 3 sigma of the
+        inertial-frame solution (the buffer is used twice, so the prior stays wide); the
+        initial velocity is the sway velocity of the first sample, which the mechanization,
+        starting at zero, would otherwise carry as a constant offset.
+        """
+        c = self.config
+        sp = c.specs
+        fit = inertial_alignment(dt, w, f, self.w_ie, self.g_n, self.limit_std,
+                                 sp.gyro_arw, sp.accel_vrw)
+        lv, hd = (a * DEG for a in c.fine_initial_std_deg)
+        cap = max(hd, c.coarse_initial_std_deg[1] * DEG)
+        att = np.minimum(np.maximum(np.array([lv, lv, hd]), 3.0 * fit.std), cap)
+        diff = np.abs(so3_log(fit.C0 @ np.swapaxes(C0, -1, -2)))
+        off = np.any(diff > 3.0 * fit.std, axis=1)
+        self.started_inertial = off
+        C0 = np.where(off[:, None, None], fit.C0, C0)
+        vel = np.maximum(c.initial_velocity_std, 3.0 * fit.v0_std)
+        return C0, np.concatenate([att, vel], axis=1), fit.v0
 
     @property
     def steady_std(self) -> np.ndarray | None:
@@ -1009,7 +1045,11 @@ class AlignmentFilter:
             var = 0.5 * np.mean(d ** 2, axis=0)
             r1 = np.sum(d[1:] * d[:-1], axis=0) / np.maximum(np.sum(d * d, axis=0), 1e-300)
             floor2 = c.specs.accel_vrw ** 2 * p / 3.0 + c.fine_min_velocity_noise ** 2
-            period, r_std = p, np.sqrt(np.maximum(var, floor2)).reshape(self.n, 3)
+            var = var.reshape(self.n, 3)
+            # the sway's direction in the estimated frame moves with the heading error: a
+            # horizontal axis is as noisy as the noisier one
+            var[:, :2] = var[:, :2].max(axis=1, keepdims=True)
+            period, r_std = p, np.sqrt(np.maximum(var, floor2))
             if np.all(r1 < 0.4):
                 break
         if r_std is None:

@@ -365,6 +365,17 @@ def total_rotation(dt, w: np.ndarray) -> np.ndarray:
     return np.array([float(c[0]) for c in q])
 
 
+def start_frame_increments(dt: np.ndarray, w: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Velocity increments ``B(t_k) f_k dt_k`` in the body frame of the first sample (an
+    inertially fixed frame: ``B`` is the gyro's rotation since the start, Earth rate included).
+
+    dt : ndarray (T,) s ; w, f : ndarray (T, N, 3). Returns (T, N, 3), m/s.
+    """
+    q = prefix_rotations(dt[None, :, None], w[None])
+    q = tuple(c[0] for c in q)
+    return _qrot(q, f) * dt[:, None, None]
+
+
 def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndarray,
                        w_ie: np.ndarray, g_n: np.ndarray) -> np.ndarray:
     """Velocity of the damped mechanization without feedback, at every sample.
@@ -378,9 +389,7 @@ def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndar
     -------
     v : ndarray (T, N, 3), m/s ENU.
     """
-    q = prefix_rotations(dt[None, :, None], w[None])
-    q = tuple(c[0] for c in q)
-    u = _qrot(q, f) * dt[:, None, None]                # (T, N, 3) body frame at start
+    u = start_frame_increments(dt, w, f)               # (T, N, 3) body frame at start
     s = np.cumsum(dt)
     a = (u.transpose(1, 0, 2) @ C0.mT).transpose(1, 0, 2)   # C0 u, one product per run
     W = np.linalg.norm(w_ie)
