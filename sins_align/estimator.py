@@ -493,6 +493,8 @@ class AlignmentFilter:
             else:
                 R = np.stack(so3_exp_entries(x[0], x[1], x[2]), out=scratch_array(sc, "R", (9, n)))
             _times_rows(R.reshape(3, 3, n), X, Ct)
+            if self.fine:                       # the velocity turns with the attitude
+                v[...] = np.einsum("ijn,jn->in", R.reshape(3, 3, n), v)
             v -= x[3:]
             self.t_acc = 0.0
             if self.on_update is not None and offset is not None:
@@ -743,7 +745,8 @@ class AlignmentFilter:
         K, Sinv = self._gain(H, scale)
         x = self._innovate(z.T, K, Sinv)
         self._settle(lambda: prior, H, scale, x)
-        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T)
+        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T,
+                                          turn_velocity=self.fine)
 
     def _gain(self, H, scale: float):
         """Covariance part of an update: gain K and the inverse innovation covariance

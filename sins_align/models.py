@@ -91,15 +91,22 @@ def bias_input_matrix(model: str) -> np.ndarray:
     return Gm
 
 
-def apply_correction(model: str, C_est: np.ndarray, v_est: np.ndarray, x: np.ndarray):
+def apply_correction(model: str, C_est: np.ndarray, v_est: np.ndarray, x: np.ndarray,
+                     turn_velocity: bool = False):
     """Feed the estimated error back into the state (exact exponential on SO(3)).
 
     Shapes: C_est (..., 3, 3), v_est (..., 3), x (..., 6). Returns the corrected
-    ``(C_est, v_est)``; the error state is zero afterwards.
+    ``(C_est, v_est)``; the error state is zero afterwards. ``turn_velocity`` (constant and
+    conventional models): the velocity turns with the attitude correction before its own
+    correction, so a velocity the base really has (sway) stays tied to the estimated frame
+    and an attitude error shows in it as ``phi x v`` (zero on average) instead of as a
+    constant ``phi x v(0)`` the model has no term for.
     """
     E = so3_exp(x[..., :3])
     C_new = E @ C_est
-    if model == "se3":
+    if turn_velocity and model != "se3":
+        v_new = (E @ v_est[..., None])[..., 0] - x[..., 3:]
+    elif model == "se3":
         v_new = (E @ v_est[..., None])[..., 0] + x[..., 3:]
     else:
         v_new = v_est - x[..., 3:]
