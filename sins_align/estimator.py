@@ -959,6 +959,13 @@ class AlignmentFilter:
         vel = np.maximum(c.initial_velocity_std, 3.0 * fit.v0_std)
         return C0, np.concatenate([att, vel], axis=1), fit.v0
 
+    def force_block_means(self, k: int, most: int = 10) -> np.ndarray | None:
+        """Before the backtrack: the mean specific force (m, N, 3) of the last ``most``
+        complete blocks of ``k`` buffered samples (None once the buffer is gone)."""
+        if self._buf is None:
+            return None
+        return self._buf.force_means(k, most)
+
     @property
     def steady_std(self) -> np.ndarray | None:
         """Attitude std (N, 3), rad, the fine pass tends to (None before the backtrack);
@@ -1045,15 +1052,26 @@ class AlignmentFilter:
             counts = np.diff(edges)
             means = (csum[edges[1:]] - csum[edges[:-1]]) / np.maximum(counts, 1)[:, None]
             d = np.diff(means, axis=0)
-            var = 0.5 * np.mean(d ** 2, axis=0)
-            r1 = np.sum(d[1:] * d[:-1], axis=0) / np.maximum(np.sum(d * d, axis=0), 1e-300)
+            # half the mean square difference (blind to a slow wander), but never below the
+            # variance of the means themselves: a sway that is not white (a slow tone) has
+            # differences smaller than its spread, and gating would then take every other
+            # interval for a shove
+            var = np.maximum(0.5 * np.mean(d ** 2, axis=0), np.mean(means ** 2, axis=0))
+            # differences of white means are MA(1): lag 1 -0.5, nothing beyond; a tone shows
+            # at some lag up to 5 (0.2 Hz in 1 s means: lag 5), alternating means at lag 1 -1
+            dd = np.maximum(np.sum(d * d, axis=0), 1e-300)
+            lags = [np.sum(d[k:] * d[:-k], axis=0) / dd for k in range(1, min(6, len(d) // 2))]
+            r1 = lags[0]
+            white = (r1 < 0.4) & (r1 > -0.75)
+            for rk in lags[1:]:
+                white &= np.abs(rk) < 0.4
             floor2 = c.specs.accel_vrw ** 2 * p / 3.0 + c.fine_min_velocity_noise ** 2
             var = var.reshape(self.n, 3)
             # the sway's direction in the estimated frame moves with the heading error: a
             # horizontal axis is as noisy as the noisier one
             var[:, :2] = var[:, :2].max(axis=1, keepdims=True)
             period, r_std = p, np.sqrt(np.maximum(var, floor2))
-            if np.all(r1 < 0.4):
+            if np.all(white):
                 break
         if r_std is None:
             floor2 = c.specs.accel_vrw ** 2 * base / 3.0 + c.fine_min_velocity_noise ** 2
@@ -1170,6 +1188,19 @@ class Aligner:
                 # first seconds from a start far off, e.g. upside down)
                 up = self.dcm[2] @ fm / max(float(np.linalg.norm(fm)), 1e-12)
                 level = max(level, math.acos(max(-1.0, min(1.0, up))))
+            if self.nominal_dt is not None:
+                # ... and at least the largest angle to the 1 s means of the last 10 s: on a
+                # swaying base the estimate follows the apparent vertical, and the last second
+                # alone can agree with it while the true vertical is degrees away
+                k = max(1, int(round(1.0 / self.nominal_dt)))
+                fb = self.filter.force_block_means(k, 10)
+                if fb is not None and len(fb) < 2:
+                    # the first two seconds: nothing yet tells a sway from the vertical
+                    level = max(level, c.coarse_initial_std_deg[0] * DEG)
+                elif fb is not None:
+                    fb = fb[:, 0]
+                    cosang = (fb @ self.dcm[2]) / np.maximum(np.linalg.norm(fb, axis=1), 1e-12)
+                    level = max(level, math.acos(max(-1.0, min(1.0, float(cosang.min())))))
             floor = np.array([level, level, c.coarse_initial_std_deg[1] * DEG])
             sd = np.sqrt(np.diag(P))
             scale = np.maximum(floor, sd) / sd
@@ -1557,6 +1588,7 @@ class _SampleBuffer:
         self._t = np.empty((1024, 4))
         self._wf = np.empty((1024, n, 6))
         self._n = 0
+        self._blocks = None            # (k, block means) of force_means
 
     def append(self, dt, w, f, gap, hole=(0.0, 0.0)):
         if self._n == len(self._t):
@@ -1578,6 +1610,21 @@ class _SampleBuffer:
         self._wf[self._n:self._n + m, :, :3] = w
         self._wf[self._n:self._n + m, :, 3:] = f
         self._n += m
+
+    def force_means(self, k: int, most: int) -> np.ndarray:
+        """Mean specific force of the last ``most`` complete blocks of ``k`` samples (counted
+        from the first sample, so the same blocks whatever the feeding), (m, N, 3)."""
+        done = self._n // k
+        cache = self._blocks
+        if cache is None or cache[0] != k:
+            cache = self._blocks = (k, [])
+        means = cache[1]
+        for j in range(max(len(means), done - most), done):
+            while len(means) < j:
+                means.append(None)
+            means.append(self._wf[j * k:(j + 1) * k, :, 3:].mean(axis=0))
+        got = [m for m in means[max(0, done - most):done] if m is not None]
+        return np.array(got) if got else np.zeros((0,) + self._wf.shape[1:2] + (3,))
 
     def arrays(self):
         """dt, w, f, gap, hole (M, 2)."""
