@@ -61,6 +61,8 @@ FAST_MAX_BLOCK = 65536
 JUMP_CONFIRM = 3
 #: an interval above this multiple of the nominal one means samples are missing
 HOLE_RATIO = 1.5
+#: s: with heading unobservable, the gyro bias is attitude noise reaching its size in this time
+BIAS_TRACK_TIME = 10.0
 
 #: gain schedules of the constant model, shared between filter instances (see _cov_block)
 _SCHEDULE_CACHE: dict = {}
@@ -224,7 +226,15 @@ class AlignmentFilter:
         self.g_n = gravity_enu(self.lat, c.height_m)
         self.g = -self.g_n[2]
         sp = c.specs
-        self.Qc = np.diag([sp.gyro_arw ** 2] * 3 + [sp.accel_vrw ** 2] * 3)
+        self.limit_std = np.sqrt(np.diag(limit_covariance(self.lat, sp, self.g)))
+        q_att = sp.gyro_arw ** 2
+        if not (self.limit_std[2] < c.heading_max_limit_std_deg * DEG):
+            # heading unobservable (MEMS): a gyro bias of degrees per minute turns the level
+            # faster than the gyro noise alone lets the filter follow; without bias states
+            # it would lag, be gated and diverge. The bias enters as attitude noise that
+            # reaches its own size over BIAS_TRACK_TIME.
+            q_att += sp.gyro_bias ** 2 * BIAS_TRACK_TIME
+        self.Qc = np.diag([q_att] * 3 + [sp.accel_vrw ** 2] * 3)
         self._bias_var = np.array([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
         self.Gamma = bias_input_matrix(c.model)
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
@@ -254,7 +264,6 @@ class AlignmentFilter:
         self._B = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
         self.reinflations = np.zeros(self.n, dtype=int)
         self.gated_updates = np.zeros(self.n, dtype=int)
-        self.limit_std = np.sqrt(np.diag(limit_covariance(self.lat, c.specs, self.g)))
         self.started_inertial = np.zeros(self.n, dtype=bool)   # fine pass from sins_align.inertial
 
     # ------------------------------------------------------------------ state
