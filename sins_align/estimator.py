@@ -35,7 +35,8 @@ from .kalman import affine_scan, discretize, inv3, joseph_update, nis, riccati_s
 from .inertial import inertial_alignment
 from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
                      check_model, measurement_matrix, system_matrix)
-from .preint import earth_poly, open_loop_velocity, preintegrate, scratch_array, total_rotation
+from .preint import (earth_poly, open_loop_velocity, preintegrate, scratch_array,
+                     start_frame_increments, total_rotation)
 from .rotation import (dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm,
                        so3_exp, so3_exp_entries, so3_log)
 from .specs import DEG, SensorSpecs, grade_specs, limit_covariance
@@ -914,8 +915,9 @@ class AlignmentFilter:
         c = self.config
         C0 = so3_exp(self.w_ie * self.t_int) @ self.C @ np.swapaxes(self._B, -1, -2)
         dt, w, f, gap, hole = self._buf.arrays()
-        C0, std0, v0 = self._fine_start(C0, dt, w, f)
-        r_std, self.fine_period = self._sway_velocity_std(C0, dt, w, f)
+        u = start_frame_increments(dt, w, f)     # shared by the two analyses of the buffer
+        C0, std0, v0 = self._fine_start(C0, dt, w, f, u)
+        r_std, self.fine_period = self._sway_velocity_std(C0, dt, w, f, u)
         self.fine_R_std = r_std
         R = np.zeros((self.n, 3, 3))
         R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
@@ -942,7 +944,7 @@ class AlignmentFilter:
             uniform = np.all(np.abs(d - mean) <= 1e-9 * mean)
             self._advance_block(mean if uniform else d, w[a:b], f[a:b])
 
-    def _fine_start(self, C0, dt, w, f):
+    def _fine_start(self, C0, dt, w, f, u=None):
         """Where the fine pass starts: attitude (N, 3, 3), initial std (N, 6), velocity (N, 3).
 
         The coarse pass's estimate carried back (``C0``) is checked against the inertial-frame
@@ -957,7 +959,7 @@ class AlignmentFilter:
         c = self.config
         sp = c.specs
         fit = inertial_alignment(dt, w, f, self.w_ie, self.g_n, self.limit_std,
-                                 sp.gyro_arw, sp.accel_vrw)
+                                 sp.gyro_arw, sp.accel_vrw, increments=u)
         lv, hd = (a * DEG for a in c.fine_initial_std_deg)
         cap = max(hd, c.coarse_initial_std_deg[1] * DEG)
         att = np.minimum(np.maximum(np.array([lv, lv, hd]), 3.0 * fit.std), cap)
@@ -1023,7 +1025,7 @@ class AlignmentFilter:
         _SCHEDULE_CACHE[key] = out
         return out
 
-    def _sway_velocity_std(self, C0, dt, w, f):
+    def _sway_velocity_std(self, C0, dt, w, f, u=None):
         """Measure the sway velocity; pick the fine update period and its noise.
 
         Open-loop damped mechanization from ``C0`` over the buffer; a cubic per axis removes
@@ -1039,7 +1041,7 @@ class AlignmentFilter:
         r_std : ndarray (N, 3), m/s ; period : float, s
         """
         c = self.config
-        vs = open_loop_velocity(dt, w, f, C0, self.w_ie, self.g_n)
+        vs = open_loop_velocity(dt, w, f, C0, self.w_ie, self.g_n, increments=u)
         t = np.cumsum(dt)
         tn = (t - t.mean()) / (t.std() + 1e-12)
         A = np.vander(tn, 4)
@@ -1622,18 +1624,15 @@ class _SampleBuffer:
 
     def force_means(self, k: int, most: int) -> np.ndarray:
         """Mean specific force of the last ``most`` complete blocks of ``k`` samples (counted
-        from the first sample, so the same blocks whatever the feeding), (m, N, 3)."""
-        done = self._n // k
-        cache = self._blocks
-        if cache is None or cache[0] != k:
-            cache = self._blocks = (k, [])
-        means = cache[1]
-        for j in range(max(len(means), done - most), done):
-            while len(means) < j:
-                means.append(None)
+        from the first sample, so the same blocks whatever the feeding), (m, N, 3). Each block
+        is averaged once (the buffer holds a minute: tens of blocks)."""
+        if self._blocks is None or self._blocks[0] != k:
+            self._blocks = (k, [])
+        means = self._blocks[1]
+        for j in range(len(means), self._n // k):
             means.append(self._wf[j * k:(j + 1) * k, :, 3:].mean(axis=0))
-        got = [m for m in means[max(0, done - most):done] if m is not None]
-        return np.array(got) if got else np.zeros((0,) + self._wf.shape[1:2] + (3,))
+        got = means[-most:]
+        return np.array(got) if got else np.zeros((0, self._wf.shape[1], 3))
 
     def arrays(self):
         """dt, w, f, gap, hole (M, 2)."""

@@ -111,7 +111,7 @@ def _bartlett_variance(r: np.ndarray, a: np.ndarray, band: int) -> np.ndarray:
 
 def inertial_alignment(dt: np.ndarray, w: np.ndarray, f: np.ndarray, w_ie: np.ndarray,
                        g_n: np.ndarray, limit_std: np.ndarray, gyro_arw: float,
-                       accel_vrw: float) -> InertialFit:
+                       accel_vrw: float, increments=None) -> InertialFit:
     """Attitude at the first sample from a buffer, for N runs sharing one time line.
 
     Parameters
@@ -120,9 +120,11 @@ def inertial_alignment(dt: np.ndarray, w: np.ndarray, f: np.ndarray, w_ie: np.nd
     w_ie, g_n : ndarray (3,) — Earth rate and gravity in ENU.
     limit_std : ndarray (3,) rad — limit accuracy (E, N, U) of the bias specs (inf allowed).
     gyro_arw : rad/sqrt(s) ; accel_vrw : m/s/sqrt(s).
+    increments : :func:`sins_align.preint.start_frame_increments` of the same samples, when
+        the caller has them already.
     """
     dt = np.asarray(dt, dtype=float)
-    u = start_frame_increments(dt, w, f)                  # (T, N, 3), b0
+    u = start_frame_increments(dt, w, f) if increments is None else increments   # b0
     s = np.cumsum(dt)
     Vb = np.cumsum(u, axis=0)
     Vg = gravity_velocity_n0(s, w_ie, g_n)                # (T, 3), n0

@@ -377,7 +377,7 @@ def start_frame_increments(dt: np.ndarray, w: np.ndarray, f: np.ndarray) -> np.n
 
 
 def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndarray,
-                       w_ie: np.ndarray, g_n: np.ndarray) -> np.ndarray:
+                       w_ie: np.ndarray, g_n: np.ndarray, increments=None) -> np.ndarray:
     """Velocity of the damped mechanization without feedback, at every sample.
 
     Parameters
@@ -388,8 +388,11 @@ def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndar
     Returns
     -------
     v : ndarray (T, N, 3), m/s ENU.
+
+    ``increments``: :func:`start_frame_increments` of the same samples, when the caller has
+    them already.
     """
-    u = start_frame_increments(dt, w, f)               # (T, N, 3) body frame at start
+    u = start_frame_increments(dt, w, f) if increments is None else increments
     s = np.cumsum(dt)
     a = (u.transpose(1, 0, 2) @ C0.mT).transpose(1, 0, 2)   # C0 u, one product per run
     W = np.linalg.norm(w_ie)
