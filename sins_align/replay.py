@@ -130,7 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--initial-rpy", type=float, nargs=3, metavar=("ROLL", "PITCH", "YAW"),
                    help="initial REP-103 attitude of the IMU frame in ENU, deg")
     p.add_argument("--params", metavar="YAML", help="align_node parameter file "
-                   f"('{NODE_NAME}: ros__parameters:' or '/**'); flags override it")
+                   f"(its '/**:' or '{NODE_NAME}:' section); flags override it")
     p.add_argument("--output", metavar="OUT_DIR", help="write the node's topics to this "
                    "rosbag2 (mcap) bag")
     p.add_argument("--csv", metavar="FILE", help="write the 10 Hz time series as CSV")
