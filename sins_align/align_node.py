@@ -194,9 +194,13 @@ def _plain(value):
 
 
 def _as_declared_type(default, value):
-    """``value`` in the type of ``default`` where ROS would store another one: an integer
-    (``latitude:=34``) for a double, integers for a double array. Anything else unchanged."""
-    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+    """``value`` in the type of ``default`` (a value, or an rclpy ``Parameter.Type``) where
+    ROS would store another one: an integer (``latitude:=34``) for a double, integers for a
+    double array. Anything else unchanged."""
+    from rclpy.parameter import Parameter
+
+    double = isinstance(default, float) or default == Parameter.Type.DOUBLE
+    if double and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     if isinstance(default, list) and not isinstance(value, (str, bytes)) and value is not None:
         try:
@@ -210,7 +214,9 @@ def _as_declared_type(default, value):
 
 
 def declare_typed(node, name: str, default, descriptor, check) -> tuple[object, str | None]:
-    """Declare ``name`` statically typed as ``default`` (double, double array, integer, ...).
+    """Declare ``name`` statically typed as ``default`` (double, double array, integer, ...;
+    or an rclpy ``Parameter.Type`` for a parameter without a default, whose value is then
+    None unless it is given).
 
     An override of an integer for a double parameter (``-p latitude:=34``, ``latitude: 34`` in
     a params file) is declared as that double: the parameter's type stays the declared one.
@@ -226,8 +232,11 @@ def declare_typed(node, name: str, default, descriptor, check) -> tuple[object, 
     except (InvalidParameterTypeException, InvalidParameterValueException):
         # another type or out of the descriptor's range: read the override with a dynamically
         # typed probe, convert an integer to the declared double, check, then declare it
+        from rclpy.parameter import Parameter
+
         probe = ParameterDescriptor(dynamic_typing=True)
-        value = _as_declared_type(default, node.declare_parameter(name, default, probe).value)
+        initial = None if isinstance(default, Parameter.Type) else default
+        value = _as_declared_type(default, node.declare_parameter(name, initial, probe).value)
         node.undeclare_parameter(name)
         reason = check(value)
         if reason:
@@ -271,6 +280,7 @@ def _make_node_class():
     from rclpy.clock import JumpThreshold
     from rclpy.duration import Duration
     from rclpy.node import Node
+    from rclpy.parameter import Parameter
     from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                            qos_profile_sensor_data)
     from rclpy.serialization import deserialize_message
@@ -362,8 +372,14 @@ def _make_node_class():
                     if isinstance(p.default, float):
                         d.floating_point_range = [FloatingPointRange(
                             from_value=float(p.low), to_value=float(p.high), step=0.0)]
-                _, reason = declare_typed(self, p.name, p.default, d,
-                                          lambda v, name=p.name: check_param(name, _plain(v)))
+                default, check = p.default, (lambda v, name=p.name: check_param(name, _plain(v)))
+                if p.name == "latitude":
+                    # no default: unset is "required", a NaN given is "must be finite"
+                    default = Parameter.Type.DOUBLE
+                    check = (lambda v: "latitude is required" if v is None else
+                             "latitude must be finite, got nan" if v != v else
+                             check_param("latitude", _plain(v)))
+                _, reason = declare_typed(self, p.name, default, d, check)
                 if reason:
                     if p.name == "latitude" and "required" in reason:
                         reason += " (give the IMU's geodetic latitude in deg: -p latitude:=<deg>)"

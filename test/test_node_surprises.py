@@ -152,6 +152,27 @@ def test_bad_ros_arguments_give_one_line_and_exit_2(module, ros_args, words, tmp
     assert " at /" not in err[0] and ".c:" not in err[0], err[0]   # no C source locations
 
 
+@pytest.mark.parametrize("value, words", [
+    (".nan", "latitude must be finite, got nan"), (".inf", "latitude must be finite, got inf"),
+    ("abc", "latitude must be a number"), ("34.0", None),
+])
+def test_latitude_given_but_not_finite_is_not_called_missing(value, words, tmp_path):
+    """-p latitude:=.nan says 'must be finite' (only an absent latitude is 'required')."""
+    p = NodeProcess("align_node", ["-r", f"__node:=lat_{RUN}", "-p", f"latitude:={value}"],
+                    tmp_path)
+    try:
+        if words is None:
+            time.sleep(3.0)
+            assert p.alive(), p.output()
+            assert p.stop() == 0, p.output()
+            return
+        rc = p.wait(timeout=30)
+    finally:
+        p.stop()
+    err = [ln for ln in p.stderr().splitlines() if ln.strip()]
+    assert rc == 1 and len(err) == 1 and err[0].endswith(f"cannot start: {words}"), p.output()
+
+
 # ---------------------------------------------------------------------------- parameter types
 def test_an_integer_for_a_double_parameter_keeps_it_double(probe, tmp_path):
     """-p latitude:=34 at start and `ros2 param set /align_node disturbance_nis 5` at run
