@@ -15,8 +15,11 @@ import time
 
 import pytest
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import ParameterType
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
 
 from ros_helpers import NodeProcess, Probe, wait_until
@@ -253,3 +256,45 @@ def test_stopping_align_node_while_data_flows_is_clean(probe, tmp_path):
     finally:
         sim.stop()
         probe.unsubscribe(euler)
+
+
+# ---------------------------------------------------------------------------- use_sim_time
+def test_use_sim_time_timers_follow_clock_and_data_does_not(probe, tmp_path):
+    """README 'use_sim_time': with use_sim_time:=true, imu/data flows on the data alone;
+    alignment/euler_deg and /diagnostics (node-clock timers) wait for an advancing /clock."""
+    ns = f"/simtime_{RUN}"
+    status = "align_node: alignment"
+    out = probe.subscribe(Imu, f"{ns}/imu/data", 50, maxlen=50)
+    euler = probe.subscribe(Vector3Stamped, f"{ns}/alignment/euler_deg", 50)
+    diags = probe.subscribe(DiagnosticArray, "/diagnostics", 50, maxlen=200)
+    clock_pub = probe.node.create_publisher(Clock, "/clock", 10)
+    node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34.0", "-p", "use_sim_time:=true"],
+                  tmp_path, "simtime")
+    sim = _start(["-r", f"__ns:={ns}", "-p", "rate:=50.0", "-p", "publish_truth:=false"],
+                 tmp_path, "simtime_sim", module="imu_sim_node")
+
+    def ours():
+        return sum(any(st.name == status and st.hardware_id == "imu_link" for st in a.status)
+                   for a in diags.msgs)
+    try:
+        wait_until(lambda: out.count >= 50 or not node.alive(), 30.0, "imu/data")
+        assert node.alive(), node.output()
+        time.sleep(2.0)                  # 2 s of data: 20 euler_deg, 2 diagnostics on wall time
+        assert euler.count == 0 and ours() == 0, (euler.count, ours())
+        t = 1000.0
+        deadline = time.monotonic() + 30.0
+        while (euler.count < 5 or ours() < 2) and time.monotonic() < deadline:
+            t += 0.02
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = int(t), int(round((t % 1) * 1e9))
+            clock_pub.publish(msg)
+            time.sleep(0.02)
+        assert euler.count >= 5 and ours() >= 2, (euler.count, ours(), node.output())
+        for p in (sim, node):
+            assert p.stop() == 0, p.output()
+    finally:
+        for p in (sim, node):
+            p.stop()
+        probe.node.destroy_publisher(clock_pub)
+        for c in (out, euler, diags):
+            probe.unsubscribe(c)
