@@ -2,7 +2,9 @@
 
 - one-line user errors (:class:`CliError`, :func:`cli_main`): no tracebacks for bad input;
 - outputs that appear only when complete (:class:`AtomicOutput`): written under a temporary
-  name in the destination directory and renamed at the end, removed on any failure;
+  name in the destination directory and renamed at the end, removed on any failure, on
+  Ctrl-C, SIGTERM (``timeout``, ``kill``) and SIGHUP (a closed terminal); ``--force``
+  replaces a previous output of the same kind;
 - rosbag2 writing with the ROS 2 Jazzy typestore (:func:`open_writer`, :class:`Messages`);
 - rosbag1/rosbag2 reading with errors turned into one line (:func:`open_reader`,
   :func:`read_messages`, :func:`read_message_chunks`, :func:`deserialize`);
@@ -18,10 +20,13 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import struct
 import sys
+import threading
 import time
 import zlib
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
@@ -42,21 +47,82 @@ class CliError(Exception):
     """A user error: printed as one line on stderr, exit status 2 (no traceback)."""
 
 
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP arrived: unwinds like Ctrl-C (every output is discarded)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+#: Signals that end a tool like Ctrl-C: ``timeout`` and ``kill`` send SIGTERM, a closed
+#: terminal SIGHUP.
+TERMINATING = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+def _raise_terminated(signum, frame):
+    for sig in TERMINATING:          # a second one must not interrupt the clean-up
+        signal.signal(sig, signal.SIG_IGN)
+    raise Terminated(signum)
+
+
+@contextmanager
+def terminate_as_interrupt():
+    """While inside, SIGTERM and SIGHUP raise :class:`Terminated` (a BaseException, like
+    KeyboardInterrupt), so ``finally`` blocks and :class:`AtomicOutput` remove what was
+    half-written. A signal that is ignored (``nohup``) stays ignored. Main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {}
+    for sig in TERMINATING:
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            previous[sig] = signal.signal(sig, _raise_terminated)
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+@contextmanager
+def signals_deferred():
+    """Hold SIGINT, SIGTERM and SIGHUP back while inside (a rename pair that must not be
+    cut in the middle); they are delivered on the way out."""
+    sigs = {signal.SIGINT, *TERMINATING}
+    if threading.current_thread() is not threading.main_thread() or \
+            not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def cli_main(prog: str, run: Callable[[Sequence[str] | None], int],
              argv: Sequence[str] | None = None) -> int:
     """Run a tool's ``run(argv)`` and turn user errors into one line on stderr.
 
-    Exit status: what ``run`` returns, 2 for a :class:`CliError`, 130 on Ctrl-C, 1 for an
-    unexpected exception (one line too; set ``SINS_ALIGN_DEBUG=1`` for the traceback).
+    Exit status: what ``run`` returns, 2 for a :class:`CliError`, 130 on Ctrl-C, 128 + the
+    signal number on SIGTERM (143) or SIGHUP (129), each with one line and no half-written
+    output; 1 for an unexpected exception (one line too; set ``SINS_ALIGN_DEBUG=1`` for the
+    traceback).
     """
     try:
-        return run(argv)
+        with terminate_as_interrupt():
+            return run(argv)
     except CliError as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted; unfinished outputs removed", file=sys.stderr)
         return 130
+    except Terminated as e:
+        print(f"{prog}: terminated by {signal.Signals(e.signum).name}; unfinished outputs "
+              f"removed", file=sys.stderr)
+        return 128 + e.signum
     except BrokenPipeError:
         return 1
     except Exception as e:   # noqa: BLE001 - last resort, keep stderr to one line
@@ -74,11 +140,21 @@ def one_line(e: BaseException | str) -> str:
 
 
 # ----------------------------------------------------------------------------- outputs
-def check_new_output(path: str | os.PathLike, what: str) -> Path:
-    """Validate an output path before any work: it must not exist, its directory must."""
+def check_new_output(path: str | os.PathLike, what: str, force: bool = False,
+                     is_dir: bool = False) -> Path:
+    """Validate an output path before any work: its directory must exist and be writable;
+    the path must not exist, unless ``force`` and it holds a previous output of the same kind
+    (a regular file for a file output; a rosbag2 bag directory, or an empty directory, for a
+    bag), which :class:`AtomicOutput` then replaces once the new one is complete."""
     p = Path(path)
     if p.exists() or p.is_symlink():
-        raise CliError(f"{what} {p} already exists (remove it or choose another path)")
+        if not force:
+            raise CliError(f"{what} {p} already exists (remove it, choose another path, or "
+                           f"pass --force to replace it)")
+        reason = _not_replaceable(p, is_dir)
+        if reason:
+            raise CliError(f"{what} {p} {reason}: --force replaces only a previous "
+                           f"{'bag (a directory with metadata.yaml)' if is_dir else 'file'}")
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise CliError(f"{what} {p}: directory {parent} does not exist")
@@ -87,21 +163,50 @@ def check_new_output(path: str | os.PathLike, what: str) -> Path:
     return p
 
 
+def _not_replaceable(p: Path, is_dir: bool) -> str | None:
+    if is_dir:
+        if p.is_symlink() or not p.is_dir():
+            return "is not a directory"
+        if not ((p / "metadata.yaml").is_file() or not any(p.iterdir())):
+            return "is a directory that is not a rosbag2 bag"
+        return None
+    if p.is_dir():
+        return "is a directory"
+    if p.exists() and not p.is_file():
+        return "is not a regular file"
+    return None
+
+
+def check_bag_dir_name(path: str | os.PathLike, what: str) -> Path:
+    """A rosbag2 output is a directory: refuse a name ending in ``.bag``, which replay (and
+    rosbags, ros2 bag) take for a ROS 1 bag file ("Is a directory")."""
+    p = Path(path)
+    if p.suffix.lower() == ".bag":
+        raise CliError(f"{what} {p}: a rosbag2 bag is a directory, and a name ending in .bag "
+                       f"is read as a ROS 1 bag file; choose a name without .bag "
+                       f"(e.g. {p.with_suffix('')})")
+    return p
+
+
 class AtomicOutput:
     """A file or directory that appears at ``path`` only when complete.
 
     ``tmp`` is where to write: for a file, a hidden name in the same directory; for a
     directory (a rosbag2 bag), ``<hidden dir>/<name>`` so the bag's files keep their final
-    names. :meth:`commit` renames it to ``path`` (an existing ``path`` is an error, never
-    overwritten); :meth:`discard` removes everything. Used as a context manager, any
-    exception discards.
+    names. :meth:`commit` renames it to ``path``: an existing ``path`` is an error, or with
+    ``force`` is replaced (a file atomically with ``os.replace``; a directory is moved aside,
+    the new one renamed in, the old one removed, with signals held back in between);
+    :meth:`discard` removes everything. Used as a context manager, any exception (Ctrl-C,
+    :class:`Terminated` included) discards.
     """
 
-    def __init__(self, path: str | os.PathLike, is_dir: bool = False):
+    def __init__(self, path: str | os.PathLike, is_dir: bool = False, force: bool = False):
         self.path = Path(path)
         self.is_dir = is_dir
+        self.force = force
         parent = self.path.parent if str(self.path.parent) else Path(".")
         self._hidden = parent / f".{self.path.name}.partial-{os.getpid()}"
+        self._old = parent / f".{self.path.name}.old-{os.getpid()}"
         self.tmp = self._hidden / self.path.name if is_dir else self._hidden
         self.done = False
 
@@ -116,13 +221,30 @@ class AtomicOutput:
         return False
 
     def commit(self):
-        if self.path.exists() or self.path.is_symlink():
+        exists = self.path.exists() or self.path.is_symlink()
+        if exists and not self.force:
             raise CliError(f"{self.path} appeared while writing; not overwritten "
-                           f"(the result is discarded)")
-        os.rename(self.tmp, self.path)
-        if self.is_dir:
-            os.rmdir(self._hidden)
-        self.done = True
+                           f"(the result is discarded; --force replaces it)")
+        if exists:
+            reason = _not_replaceable(self.path, self.is_dir)
+            if reason:
+                raise CliError(f"{self.path} {reason} now; not replaced (the result is "
+                               f"discarded)")
+        with signals_deferred():
+            if not exists or not self.is_dir:
+                os.replace(self.tmp, self.path)
+            else:
+                os.rename(self.path, self._old)
+                try:
+                    os.rename(self.tmp, self.path)
+                except BaseException:
+                    os.rename(self._old, self.path)
+                    raise
+            if self.is_dir:
+                os.rmdir(self._hidden)
+            self.done = True
+        if self._old.exists():
+            shutil.rmtree(self._old, ignore_errors=True)
 
     def discard(self):
         if self.done:
@@ -296,6 +418,10 @@ def open_reader(path: str | os.PathLike):
     if p.is_dir():
         if not (p / "metadata.yaml").is_file():
             raise CliError(f"{p} is a directory without metadata.yaml: not a rosbag2 bag")
+        if p.suffix.lower() == ".bag":
+            raise CliError(f"{p} is a rosbag2 bag (a directory) named like a ROS 1 bag file, "
+                           f"which rosbags cannot open: rename it without .bag "
+                           f"(mv {p} {p.with_suffix('')})")
     elif p.suffix not in (".bag", ".mcap", ".db3"):
         raise CliError(f"{p} is not {_BAG_KINDS}")
     reader = None

@@ -7,7 +7,7 @@ Usage::
         [--columns t,gx,gy,gz,ax,ay,az] [--delimiter auto|,|;|tab|space] [--skip-rows N]
         [--time-units s|ms|us|ns] [--gyro-units rad/s|deg/s|rad|deg]
         [--accel-units m/s2|g|m/s] [--g M/S2] [--grade NAME]
-        [--storage mcap|sqlite3] [--compression none|zstd]
+        [--storage mcap|sqlite3] [--compression none|zstd] [--force]
 
 Inputs
 ------
@@ -22,12 +22,19 @@ Inputs
   from a header line (names like time/stamp, gyro_x/wx/angular_velocity_x, acc_x/ax/
   linear_acceleration_x), else the default order ``t gx gy gz ax ay az``. Blank lines and
   lines starting with ``#`` or ``%`` are skipped, as are the first ``--skip-rows`` lines.
+  Units written in the header names are honoured: ``time [ms]``, ``gx (deg/s)``, ``az [g]``
+  (time s/ms/us/ns, gyro rad/s/deg/s/rad/deg, accel m/s2/g/m/s); an unknown unit, columns of
+  one sensor with different units, or a unit that contradicts ``--time-units``,
+  ``--gyro-units`` or ``--accel-units`` is refused in one line. Without units in the header
+  the flags apply (defaults s, rad/s, m/s2). A UTF-8 byte-order mark is ignored.
   Increment units (``rad``/``deg``, ``m/s``) are divided by the sample interval (the first
   sample uses the second interval). Time must increase strictly.
 
 Covariances are "unknown" (zeros) unless ``--grade`` gives specs (then as imu_sim_node);
 orientation is "not provided" (covariance[0] = -1). Malformed input gives one line on stderr
-with the file name and line number, and no output.
+with the file name and line number, and no output (nor on Ctrl-C, SIGTERM, SIGHUP). An
+existing OUT is refused unless ``--force`` (a previous bag is then replaced once the new one
+is complete); OUT must not end in ``.bag`` (replay would take it for a ROS 1 bag file).
 """
 from __future__ import annotations
 
@@ -42,10 +49,11 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from .bagio import (AtomicOutput, CliError, COMPRESSIONS, Messages, STORAGES, check_new_output,
-                    check_storage, cli_main, open_writer, qos_profile)
-from .imu_fields import (IMU_FRAME, RAW_TOPIC, ImuCovariances, ImuFields, imu_covariances,
-                         split_stamp)
+from .bagio import (AtomicOutput, CliError, COMPRESSIONS, Messages, STORAGES,
+                    check_bag_dir_name, check_new_output, check_storage, cli_main, open_writer,
+                    qos_profile)
+from .imu_fields import (IMU_FRAME, MAX_STAMP_S, RAW_TOPIC, ImuCovariances, ImuFields,
+                         imu_covariances, split_stamp)
 from .specs import DEG, GRADES, grade_specs
 
 PROG = "import_imu"
@@ -56,7 +64,21 @@ GYRO_UNITS = {"rad/s": (1.0, False), "deg/s": (DEG, False), "rad": (1.0, True),
 ACCEL_UNITS = {"m/s2": (1.0, False), "m/s^2": (1.0, False), "g": (None, False),
                "m/s": (1.0, True)}
 DELIMITERS = {"auto": None, ",": ",", ";": ";", "tab": "\t", "space": None}
-MAX_STAMP_NS = (2 ** 31 - 1) * 10 ** 9   # builtin_interfaces/Time.sec is int32
+DEFAULT_UNITS = {"time": "s", "gyro": "rad/s", "accel": "m/s2"}
+#: Units as written in header names (lower case, spaces removed) -> the --*-units value.
+HEADER_UNITS = {
+    "time": {"s": "s", "sec": "s", "secs": "s", "second": "s", "seconds": "s", "ms": "ms",
+             "msec": "ms", "us": "us", "µs": "us", "μs": "us", "usec": "us", "ns": "ns",
+             "nsec": "ns"},
+    "gyro": {"rad/s": "rad/s", "rad/sec": "rad/s", "rad*s^-1": "rad/s", "rad.s^-1": "rad/s",
+             "deg/s": "deg/s", "deg/sec": "deg/s", "°/s": "deg/s", "dps": "deg/s",
+             "rad": "rad", "deg": "deg", "°": "deg"},
+    "accel": {"m/s2": "m/s2", "m/s^2": "m/s2", "m/s²": "m/s2", "m/s/s": "m/s2",
+              "m*s^-2": "m/s2", "m.s^-2": "m/s2", "g": "g", "m/s": "m/s"},
+}
+_KIND = {"t": "time", "gx": "gyro", "gy": "gyro", "gz": "gyro", "ax": "accel", "ay": "accel",
+         "az": "accel"}
+MAX_STAMP_NS = (MAX_STAMP_S - 1) * 10 ** 9   # builtin_interfaces/Time.sec is int32
 
 _ALIASES = {
     "t": ("t", "time", "times", "stamp", "timestamp", "time_s", "t_s", "sec", "seconds"),
@@ -87,7 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG, description="Convert an IMU log (PSINS .imu, or CSV/whitespace text of "
         "time + gyro + accel) into a rosbag2 bag of sensor_msgs/Imu.")
     p.add_argument("input", metavar="INPUT", help="log file")
-    p.add_argument("out", metavar="OUT", help="output bag directory (must not exist)")
+    p.add_argument("out", metavar="OUT", help="output bag directory (must not exist, nor end "
+                   "in .bag)")
     p.add_argument("--format", default="auto", choices=("auto", "psins", "text"),
                    help="auto: psins for .imu files or a leading '%%' header, else text")
     p.add_argument("--topic", default="/" + RAW_TOPIC, help="default /imu/data_raw")
@@ -105,15 +128,20 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--delimiter", default="auto", choices=sorted(DELIMITERS),
                    help="auto: ',' or ';' if present in the first row, else whitespace")
     t.add_argument("--skip-rows", type=int, default=0, help="lines to skip at the top")
-    t.add_argument("--time-units", default="s", choices=sorted(TIME_UNITS))
-    t.add_argument("--gyro-units", default="rad/s", choices=list(GYRO_UNITS),
-                   help="rates (rad/s, deg/s) or increments per sample (rad, deg)")
-    t.add_argument("--accel-units", default="m/s2", choices=list(ACCEL_UNITS),
-                   help="specific force (m/s2, g) or velocity increments per sample (m/s)")
+    t.add_argument("--time-units", choices=sorted(TIME_UNITS),
+                   help="default: from the header (time [ms]), else s")
+    t.add_argument("--gyro-units", choices=list(GYRO_UNITS),
+                   help="rates (rad/s, deg/s) or increments per sample (rad, deg); default: "
+                   "from the header (gx [deg/s]), else rad/s")
+    t.add_argument("--accel-units", choices=list(ACCEL_UNITS),
+                   help="specific force (m/s2, g) or velocity increments per sample (m/s); "
+                   "default: from the header (az [g]), else m/s2")
     t.add_argument("--g", type=float, default=9.80665, help="value of 1 g, m/s^2 (default "
                    "9.80665)")
     p.add_argument("--storage", default="mcap", choices=STORAGES)
     p.add_argument("--compression", default="none", choices=COMPRESSIONS)
+    p.add_argument("--force", action="store_true",
+                   help="replace OUT if it is a previous bag (once the new one is complete)")
     return p
 
 
@@ -144,14 +172,50 @@ class TextLog:
         self.path = path
         self.name = str(path)
         self.args = args
-        self.t_scale = TIME_UNITS[args.time_units]
-        self.g_scale, self.g_inc = GYRO_UNITS[args.gyro_units]
-        a_scale, self.a_inc = ACCEL_UNITS[args.accel_units]
-        self.a_scale = args.g if a_scale is None else a_scale
+        #: units in use: kind -> (value, where from: "header", "option" or "default")
+        self.units = {k: (getattr(args, f"{k}_units") or v,
+                          "option" if getattr(args, f"{k}_units") else "default")
+                      for k, v in DEFAULT_UNITS.items()}
+        self._set_scales()
         self.sep = DELIMITERS[args.delimiter]
         self.sep_fixed = args.delimiter != "auto"
         self.index: list[int] | None = (self._parse_columns(args.columns)
                                         if args.columns else None)
+
+    def _set_scales(self):
+        self.t_scale = TIME_UNITS[self.units["time"][0]]
+        self.g_scale, self.g_inc = GYRO_UNITS[self.units["gyro"][0]]
+        a_scale, self.a_inc = ACCEL_UNITS[self.units["accel"][0]]
+        self.a_scale = self.args.g if a_scale is None else a_scale
+
+    def _header_units(self, fields: list[str], lineno: int):
+        """Units written in the header names of the used columns (``gx [deg/s]``): each
+        sensor's columns must agree, with each other and with an explicit --*-units."""
+        found: dict[str, tuple[str, str]] = {}     # kind -> (unit value, column text)
+        for role, i in zip(ROLES, self.index):
+            if i >= len(fields):
+                continue
+            m = re.search(r"[\(\[]\s*([^\)\]]*?)\s*[\)\]]", fields[i])
+            if not m:
+                continue
+            kind = _KIND[role]
+            written = m.group(1)
+            unit = HEADER_UNITS[kind].get(written.lower().replace(" ", ""))
+            if unit is None:
+                raise self._err(lineno, f"column {fields[i]!r}: unknown {kind} unit "
+                                f"{written!r} (known: {', '.join(_known_units(kind))}); "
+                                f"rename the column or convert the data")
+            if kind in found and found[kind][0] != unit:
+                raise self._err(lineno, f"columns {found[kind][1]!r} and {fields[i]!r} have "
+                                f"different {kind} units")
+            found.setdefault(kind, (unit, fields[i]))
+        for kind, (unit, col) in found.items():
+            given, source = self.units[kind]
+            if source == "option" and given != unit:
+                raise self._err(lineno, f"column {col!r} says {unit}, --{kind}-units says "
+                                f"{given}; drop one of them")
+            self.units[kind] = (unit, "header")
+        self._set_scales()
 
     def _err(self, lineno: int, msg: str) -> CliError:
         return CliError(f"{self.name}:{lineno}: {msg}")
@@ -195,7 +259,8 @@ class TextLog:
     def rows(self) -> Iterator[tuple[int, int, list[float]]]:
         """(line number, stamp ns, [gx, gy, gz, ax, ay, az] as given) per data line."""
         try:
-            fh = open(self.path, "r", encoding="utf-8", errors="replace")
+            # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the header
+            fh = open(self.path, "r", encoding="utf-8-sig", errors="replace")
         except OSError as e:
             raise CliError(f"cannot read {self.name}: {e.strerror}") from None
         with fh:
@@ -214,6 +279,7 @@ class TextLog:
                     if not _all_numeric(fields):
                         if self.index is None:
                             self.index = self._header_index(fields, lineno)
+                        self._header_units(fields, lineno)
                         continue
                     if self.index is None:
                         self.index = list(range(7))
@@ -233,7 +299,7 @@ class TextLog:
             raise self._err(lineno, f"time {text!r} is not finite")
         ns = int((d * self.t_scale).to_integral_value())
         if not 0 <= ns <= MAX_STAMP_NS:
-            raise self._err(lineno, f"time {text!r} {self.args.time_units} is outside a ROS "
+            raise self._err(lineno, f"time {text!r} {self.units['time'][0]} is outside a ROS "
                             f"stamp's range (0 .. 2^31 s)")
         return ns
 
@@ -279,6 +345,10 @@ class TextLog:
         return ns, (v[0] * gs, v[1] * gs, v[2] * gs), (v[3] * as_, v[4] * as_, v[5] * as_)
 
 
+def _known_units(kind: str) -> list[str]:
+    return list(dict.fromkeys(HEADER_UNITS[kind].values()))
+
+
 def _all_numeric(fields: list[str]) -> bool:
     try:
         for f in fields:
@@ -292,7 +362,7 @@ def _is_psins(path: Path) -> bool:
     if path.suffix.lower() == ".imu":
         return True
     try:
-        with open(path, "r", encoding="utf-8", errors="replace") as fh:
+        with open(path, "r", encoding="utf-8-sig", errors="replace") as fh:
             for line in fh:
                 if line.strip():
                     return line.lstrip().startswith("%")
@@ -362,13 +432,20 @@ def run(argv: Sequence[str] | None = None) -> int:
     if fmt == "auto":
         fmt = "psins" if _is_psins(src) else "text"
     args.format = fmt
-    out = check_new_output(args.out, "output")
+    out = check_new_output(check_bag_dir_name(args.out, "output"), "output", force=args.force,
+                           is_dir=True)
 
+    text = None
     if fmt == "psins":
+        given = [f"--{k}-units" for k in DEFAULT_UNITS if getattr(args, f"{k}_units")]
+        if given:
+            raise CliError(f"{', '.join(given)}: a PSINS log states its own units (header and "
+                           f"scale factors); these options are for text input")
         samples = psins_samples(src, args)
         axes = "X-Right Y-Forward Z-Up (PSINS RFU)"
     else:
-        samples = _limited(TextLog(src, args).samples(), args)
+        text = TextLog(src, args)
+        samples = _limited(text.samples(), args)
         axes = "as in the file"
     covs = ImuCovariances()
     if args.grade:
@@ -378,13 +455,15 @@ def run(argv: Sequence[str] | None = None) -> int:
         rate = 1.0 / float(np.median(dts)) if len(dts) else 100.0
         covs = imu_covariances(grade_specs(args.grade), rate)
         samples = itertools.chain(head, samples)
-    with AtomicOutput(out, is_dir=True) as tmp:
+    with AtomicOutput(out, is_dir=True, force=args.force) as tmp:
         n, first, last = write_imu_bag(tmp.tmp, samples, args, covs)
         tmp.commit()
     dur = (last - first) * 1e-9
     rate = f", {(n - 1) / dur:.2f} Hz" if n > 1 and dur > 0 else ""
+    units = "" if text is None else ", units " + ", ".join(
+        f"{k} {u}{' (header)' if src_ == 'header' else ''}" for k, (u, src_) in text.units.items())
     print(f"wrote {out}: {n} samples on {args.topic}, {dur:.3f} s{rate}, frame_id "
-          f"{args.frame_id} (body axes {axes}), from {fmt} {src.name}")
+          f"{args.frame_id} (body axes {axes}), from {fmt} {src.name}{units}")
     return 0
 
 

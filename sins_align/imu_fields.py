@@ -42,6 +42,8 @@ NOT_PROVIDED_COVARIANCE: Cov9 = (-1.0,) + (0.0,) * 8
 NO_ORIENTATION_XYZW = (0.0, 0.0, 0.0, 1.0)
 
 NS_PER_S = 1_000_000_000
+#: First second a ``builtin_interfaces/Time`` cannot hold (``sec`` is an int32).
+MAX_STAMP_S = 2 ** 31
 
 
 def diagonal_covariance(variance: float) -> Cov9:

@@ -25,7 +25,8 @@ from .params import PARAMS_BY_NAME, check_param
 from .sim import SWAY_PRESETS
 from .specs import DPH, DPSH, UG, UG_PSHZ
 
-NODE_NAME = "imu_sim"
+#: The node's name: its executable's (``ros2 param list /imu_sim_node``).
+NODE_NAME = "imu_sim_node"
 
 #: name -> (default, description, low, high or choices). All read-only (set at startup).
 SIM_PARAMS: dict[str, tuple] = {
@@ -96,13 +97,12 @@ def _make_node_class():
     from geometry_msgs.msg import QuaternionStamped
     from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.clock import Clock, ClockType
-    from rclpy.exceptions import InvalidParameterTypeException
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
     from rclpy.task import Future
     from sensor_msgs.msg import Imu
 
-    from .align_node import refuse_start
+    from .align_node import declare_typed, refuse_start
     from .sim import ImuSimulator
     from .specs import grade_specs
 
@@ -113,22 +113,14 @@ def _make_node_class():
             super().__init__(NODE_NAME, **kwargs)
             values, reason = {}, None
             for name, (default, text, *_) in SIM_PARAMS.items():
+                # statically typed: rate:=100 is the double 100.0 (align_node.declare_typed)
                 d = ParameterDescriptor(description=text, read_only=True)
-                if isinstance(default, (float, list)):
-                    d.dynamic_typing = True    # accept 100 as well as 100.0
-                try:
-                    value = self.declare_parameter(name, default, d).value
-                except InvalidParameterTypeException as e:
-                    reason = str(e.args[0]).removesuffix(f": {name}")
-                    break
-                if isinstance(value, (int, float)) and not isinstance(value, bool) \
-                        and isinstance(default, float):
-                    value = float(value)
-                elif isinstance(default, list):
-                    value = [float(x) for x in value] if _is_seq(value) else value
-                reason = check_sim_param(name, value)
+                value, reason = declare_typed(
+                    self, name, default, d, lambda v, name=name: check_sim_param(name, v))
                 if reason:
                     break
+                if isinstance(default, list):
+                    value = [float(x) for x in value]
                 values[name] = value
             sim = None
             if reason is None:
@@ -235,17 +227,9 @@ def _make_node_class():
     return ImuSimNode
 
 
-def _is_seq(v) -> bool:
-    try:
-        iter(v)
-    except TypeError:
-        return False
-    return not isinstance(v, str)
-
-
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``imu_sim_node`` / ``python -m sins_align.imu_sim_node``."""
-    from .align_node import build_arg_parser, parse_cli
+    from .align_node import build_arg_parser, node_main
 
     lines = ["parameters (all read-only; --ros-args -p name:=value):"]
     lines += [f"  {k} (default {v[0]!r}): {v[1]}" for k, v in SIM_PARAMS.items()]
@@ -255,14 +239,23 @@ def main(args: list[str] | None = None) -> int:
         "the true attitude on imu_sim/truth (geometry_msgs/QuaternionStamped).",
         "\n".join(lines) + "\n\nexample:\n  ros2 run sins_align imu_sim_node --ros-args "
         "-p rpy:='[2.0, -1.0, 30.0]' -p speed:=5.0 -p sway:=car")
-    parse_cli(parser, args)
+    return node_main("imu_sim_node", parser, args, _make_node_class, spin_until_done)
 
-    import rclpy
 
-    from .align_node import run_node
+def spin_until_done(node, stop) -> None:
+    """Spin ``node`` until it is done (``exit_when_done``), ``stop`` is set (SIGINT, SIGTERM,
+    SIGHUP) or its context shuts down."""
+    from rclpy.executors import SingleThreadedExecutor
 
-    return run_node(args, _make_node_class(),
-                    lambda node: rclpy.spin_until_future_complete(node, node.done))
+    from .align_node import SPIN_PERIOD
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        while node.context.ok() and not stop.is_set() and not node.done.done():
+            executor.spin_once(timeout_sec=SPIN_PERIOD)
+    finally:
+        executor.shutdown()
 
 
 if __name__ == "__main__":

@@ -16,7 +16,11 @@ from .estimator import AlignConfig
 from .models import MODELS
 from .specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
 
-NODE_NAME = "sins_align"
+#: The node's name: its executable's (``ros2 param list /align_node``). The shipped
+#: config/align.yaml is keyed ``/**`` so that it applies to a renamed node too.
+NODE_NAME = "align_node"
+#: The node's name before 0.1.0 left it (a params file keyed with it no longer applies).
+OLD_NODE_NAME = "sins_align"
 
 
 @dataclass(frozen=True)
@@ -118,7 +122,9 @@ def check_param(name: str, value: Any) -> str | None:
         return f"{name} must be a number"
     v = float(value)
     if not math.isfinite(v):
-        return f"{name} is required" if name == "latitude" else f"{name} must be finite"
+        if name == "latitude" and math.isnan(v):
+            return "latitude is required"
+        return f"{name} must be finite, got {v:g}"
     if (spec.low is not None and v < spec.low) or (spec.high is not None and v > spec.high):
         return f"{name} must be within [{spec.low:g}, {spec.high:g}], got {v:g}"
     return None
@@ -156,8 +162,30 @@ def config_from_params(values: dict[str, Any]) -> AlignConfig:
                        rate_hz=rate if rate > 0 else None, **kw)
 
 
+def node_key_matches(key: str, node_name: str = NODE_NAME, namespace: str = "/") -> bool:
+    """Whether a ROS 2 params-file key names the node ``namespace/node_name``, as rcl matches
+    it: ``/**`` (any), ``*`` (one name token), ``**`` (any number of tokens), the leading ``/``
+    optional."""
+    fqn = [t for t in f"{namespace}/{node_name}".split("/") if t]
+    pattern = [t for t in str(key).split("/") if t]
+
+    def match(pi: int, ni: int) -> bool:
+        if pi == len(pattern):
+            return ni == len(fqn)
+        tok = pattern[pi]
+        if tok == "**":
+            return any(match(pi + 1, k) for k in range(ni, len(fqn) + 1))
+        if ni < len(fqn) and tok in ("*", fqn[ni]):
+            return match(pi + 1, ni + 1)
+        return False
+
+    return bool(pattern) and match(0, 0)
+
+
 def load_params_yaml(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
-    """Read the ``ros__parameters`` of ``node_name`` (or ``/**``) from a ROS 2 params file.
+    """Read the ``ros__parameters`` that apply to node ``node_name`` (at the root namespace)
+    from a ROS 2 params file: the sections keyed ``/**``, ``node_name``, ``/node_name`` or
+    any wildcard key that matches it, in file order (later ones win, as in rcl).
 
     Raises
     ------
@@ -173,10 +201,15 @@ def load_params_yaml(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: not a ROS 2 parameters file (expected a mapping)")
     out: dict[str, Any] = {}
-    for key in ("/**", node_name, "/" + node_name):
-        block = doc.get(key)
-        if isinstance(block, dict) and isinstance(block.get("ros__parameters"), dict):
+    for key, block in doc.items():
+        if node_key_matches(key, node_name) and isinstance(block, dict) \
+                and isinstance(block.get("ros__parameters"), dict):
             out.update(block["ros__parameters"])
     if not out:
-        raise ValueError(f"{path}: no '{node_name}: ros__parameters:' section")
+        hint = ""
+        if node_name == NODE_NAME and any(node_key_matches(k, OLD_NODE_NAME) for k in doc):
+            hint = (f" (the node is named {NODE_NAME} now, after its executable: key the "
+                    f"section '{NODE_NAME}:' or '/**:' instead of '{OLD_NODE_NAME}:')")
+        raise ValueError(f"{path}: no '/**:' or '{node_name}:' section with ros__parameters"
+                         + hint)
     return out

@@ -5,7 +5,7 @@ Usage (stable interface)::
     python -m sins_align.replay BAG [--topic /imu] [--latitude DEG] [--height M]
         [--model NAME] [--grade NAME] [--initial-rpy ROLL PITCH YAW] [--params align.yaml]
         [--output OUT_DIR] [--csv FILE] [--plot FILE.png] [--summary-json FILE]
-        [--truth-topic TOPIC]
+        [--truth-topic TOPIC] [--force]
 
 BAG is a rosbag2 bag (directory, .mcap or .db3; sqlite3 or mcap storage) or a ROS 1 ``.bag``.
 ``--topic`` may be left out when the bag holds exactly one ``sensor_msgs/Imu`` topic.
@@ -17,8 +17,9 @@ each message becomes a sample through :func:`sins_align.outputs.imu_sample` and 
 :class:`~sins_align.outputs.StampClock`; every published value comes from
 :mod:`sins_align.outputs`. A replay therefore publishes the numbers the live node publishes.
 
-Outputs (each appears only when complete; an existing path is an error)
-------------------------------------------------------------------------
+Outputs (each appears only when complete, nothing on Ctrl-C, SIGTERM or SIGHUP; an existing
+path is an error unless ``--force``, which replaces a previous output of the same kind)
+------------------------------------------------------------------------------------------
 - ``--output``: a rosbag2 bag (mcap storage, zstd chunks) with the node's topics, resolved at
   root, stamped with data time (message time = header stamp, ns):
 
@@ -81,9 +82,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks, check_new_output,
-                    cli_main, deserialize, one_line, open_reader, open_writer, qos_profile,
-                    read_message_chunks)
+from .bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks, check_bag_dir_name,
+                    check_new_output, cli_main, deserialize, one_line, open_reader, open_writer,
+                    qos_profile, read_message_chunks, signals_deferred)
 from .cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
 from .estimator import AlignConfig, Aligner
 from .align_node import NODE_PARAMS
@@ -130,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--initial-rpy", type=float, nargs=3, metavar=("ROLL", "PITCH", "YAW"),
                    help="initial REP-103 attitude of the IMU frame in ENU, deg")
     p.add_argument("--params", metavar="YAML", help="align_node parameter file "
-                   f"('{NODE_NAME}: ros__parameters:' or '/**'); flags override it")
+                   f"(its '/**:' or '{NODE_NAME}:' section); flags override it")
     p.add_argument("--output", metavar="OUT_DIR", help="write the node's topics to this "
                    "rosbag2 (mcap) bag")
     p.add_argument("--csv", metavar="FILE", help="write the 10 Hz time series as CSV")
@@ -139,6 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--truth-topic", metavar="TOPIC", help="geometry_msgs/QuaternionStamped "
                    "truth of C_b^n (e.g. /imu_sim/truth) to report the attitude error")
     p.add_argument("--quiet", action="store_true", help="no summary on stdout")
+    p.add_argument("--force", action="store_true", help="replace outputs that exist (a previous "
+                   "bag, CSV, plot or summary; each once the new one is complete)")
     return p
 
 
@@ -160,11 +163,18 @@ def params_from_args(args) -> tuple[dict[str, Any], dict[str, Any]]:
             raise CliError(one_line(e)) from None
         for k, v in loaded.items():
             (node_only if k in NODE_PARAMS or k == "use_sim_time" else values)[k] = v
+        lat = values.get("latitude")
+        if isinstance(lat, float) and math.isnan(lat):
+            raise CliError(f"latitude in {args.params} must be a finite number, got nan")
     for flag, name in (("latitude", "latitude"), ("height", "height"), ("model", "model"),
                        ("grade", "grade")):
         v = getattr(args, flag)
         if v is not None:
             values[name] = v
+    for flag in ("latitude", "height"):
+        v = getattr(args, flag)
+        if v is not None and not math.isfinite(v):
+            raise CliError(f"--{flag} must be a finite number, got {v}")
     if args.initial_rpy is not None:
         values["initial_rpy"] = [float(a) for a in args.initial_rpy]
     rate = node_only.get("euler_rate", NODE_PARAMS["euler_rate"][0])
@@ -1026,16 +1036,20 @@ def run(argv: Sequence[str] | None = None) -> int:
     for what, p, is_dir in (("bag", args.output, True), ("csv", args.csv, False),
                             ("plot", args.plot, False), ("summary", args.summary_json, False)):
         if p:
-            outs[what] = (check_new_output(p, f"--{'output' if what == 'bag' else what}"
-                                           if what != "summary" else "--summary-json"), is_dir)
+            flag = {"bag": "--output", "summary": "--summary-json"}.get(what, f"--{what}")
+            if is_dir:
+                check_bag_dir_name(p, flag)
+            outs[what] = (check_new_output(p, flag, force=args.force, is_dir=is_dir), is_dir)
     if len({str(p.resolve()) for p, _ in outs.values()}) != len(outs):
         raise CliError("the output paths must differ")
+    if any(p.resolve() == Path(args.bag).resolve() for p, _ in outs.values()):
+        raise CliError("an output path is the input bag")
     values, node_only = params_from_args(args)
     config = config_or_error(values)
     params = merged_params(values)
     euler_rate = float(node_only.get("euler_rate", NODE_PARAMS["euler_rate"][0]))
 
-    atomic = {w: AtomicOutput(p, is_dir=d) for w, (p, d) in outs.items()}
+    atomic = {w: AtomicOutput(p, is_dir=d, force=args.force) for w, (p, d) in outs.items()}
     try:
         for a in atomic.values():
             a.__enter__()
@@ -1050,8 +1064,9 @@ def run(argv: Sequence[str] | None = None) -> int:
         if "summary" in atomic:
             atomic["summary"].tmp.write_text(json.dumps(summary, indent=2, allow_nan=False)
                                              + "\n")
-        for a in atomic.values():
-            a.commit()
+        with signals_deferred():        # all outputs, or none
+            for a in atomic.values():
+                a.commit()
     finally:
         for a in atomic.values():
             a.discard()

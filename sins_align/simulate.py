@@ -6,7 +6,7 @@ Usage::
         [--grade NAME] [--gyro-bias DEG/H] [--gyro-arw DEG/SQRT(H)] [--accel-bias UG]
         [--accel-vrw UG/SQRT(HZ)]
         [--sway none|car|ship] [--sway-amplitude K] [--rate HZ] [--duration S] [--seed N]
-        [--t0 S] [--storage mcap|sqlite3] [--compression none|zstd] OUT
+        [--t0 S] [--storage mcap|sqlite3] [--compression none|zstd] [--force] OUT
 
 The bag (rosbag2, a directory OUT/ with metadata.yaml) holds
 
@@ -19,7 +19,10 @@ The bag (rosbag2, a directory OUT/ with metadata.yaml) holds
 Message fields come from :mod:`sins_align.imu_fields`, as in imu_sim_node; samples from
 :class:`sins_align.sim.ImuSimulator` (sample k stamped t0 + (k+1)/rate). Generated in blocks,
 so memory does not grow with the duration. The simulation settings are stored in the bag's
-``custom_data`` (keys ``sins_align.*``). The bag appears only when complete.
+``custom_data`` (keys ``sins_align.*``). The bag appears only when complete (Ctrl-C, SIGTERM
+or SIGHUP leave nothing behind); an existing OUT is refused unless ``--force`` (then a
+previous bag is replaced once the new one is complete). OUT must not end in ``.bag`` (the
+ROS 1 suffix: replay would take the directory for a ROS 1 bag file).
 """
 from __future__ import annotations
 
@@ -30,10 +33,11 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from .bagio import (AtomicOutput, CliError, COMPRESSIONS, Messages, STORAGES, check_new_output,
-                    check_storage, cli_main, open_writer, qos_profile)
-from .imu_fields import (IMU_FRAME, RAW_TOPIC, TRUTH_TOPIC, imu_covariances, imu_fields,
-                         sample_stamps_ns, truth_fields)
+from .bagio import (AtomicOutput, CliError, COMPRESSIONS, Messages, STORAGES,
+                    check_bag_dir_name, check_new_output, check_storage, cli_main, open_writer,
+                    qos_profile)
+from .imu_fields import (IMU_FRAME, MAX_STAMP_S, RAW_TOPIC, TRUTH_TOPIC, imu_covariances,
+                         imu_fields, sample_stamps_ns, truth_fields)
 from .specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
 
 PROG = "simulate"
@@ -49,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG, description="Simulate a quasi-static IMU and write a rosbag2 bag of "
         "/imu/data_raw (sensor_msgs/Imu) and /imu_sim/truth (geometry_msgs/QuaternionStamped), "
         "as imu_sim_node would publish them.")
-    p.add_argument("out", metavar="OUT", help="output bag directory (must not exist)")
+    p.add_argument("out", metavar="OUT", help="output bag directory (must not exist, nor end "
+                   "in .bag)")
     p.add_argument("--latitude", type=float, default=34.0, help="latitude, deg (default 34)")
     p.add_argument("--height", type=float, default=0.0, help="height, m (default 0)")
     p.add_argument("--rpy", type=float, nargs=3, default=(0.0, 0.0, 0.0),
@@ -74,6 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--storage", default="mcap", choices=STORAGES, help="default mcap")
     p.add_argument("--compression", default="none", choices=COMPRESSIONS,
                    help="zstd: mcap chunk compression / sqlite3 per-message (default none)")
+    p.add_argument("--force", action="store_true",
+                   help="replace OUT if it is a previous bag (once the new one is complete)")
     return p
 
 
@@ -93,13 +100,22 @@ def specs_from_args(args, grade: str | None = None):
 
 def _check_args(args):
     for name, ok in (("--latitude", abs(args.latitude) <= 90.0),
+                     ("--height", True),
                      ("--rate", args.rate > 0.0), ("--duration", args.duration > 0.0),
                      ("--sway-amplitude", args.sway_amplitude >= 0.0)):
         v = getattr(args, name[2:].replace("-", "_"))
-        if not (math.isfinite(v) and ok):
+        if not math.isfinite(v):
+            raise CliError(f"{name} must be a finite number, got {v}")
+        if not ok:
             raise CliError(f"{name} out of range: {v}")
-    if not all(math.isfinite(a) for a in args.rpy) or not math.isfinite(args.t0):
-        raise CliError("--rpy and --t0 must be finite")
+    if not all(math.isfinite(a) for a in args.rpy):
+        raise CliError(f"--rpy must be finite angles, got {' '.join(map(str, args.rpy))}")
+    # stamps are builtin_interfaces/Time: sec is an int32, and negative times are not stamps
+    last = args.t0 + args.duration + 1.0 / args.rate
+    if not (math.isfinite(args.t0) and args.t0 >= 0.0 and last < MAX_STAMP_S):
+        raise CliError(f"--t0 must be >= 0 s and the last stamp (t0 + duration) below 2^31 s "
+                       f"(a ROS stamp's seconds are int32), got --t0 {args.t0:.12g} with "
+                       f"--duration {args.duration:.12g}")
     if int(math.floor(args.duration * args.rate + 1e-9)) < 1:
         raise CliError(f"--duration {args.duration} s is shorter than one sample")
     if args.seed < 0:
@@ -161,8 +177,9 @@ def run(argv: Sequence[str] | None = None) -> int:
         specs = specs_from_args(args)
     except ValueError as e:
         raise CliError(str(e)) from None
-    out = check_new_output(args.out, "output")
-    with AtomicOutput(out, is_dir=True) as tmp:
+    out = check_new_output(check_bag_dir_name(args.out, "output"), "output", force=args.force,
+                           is_dir=True)
+    with AtomicOutput(out, is_dir=True, force=args.force) as tmp:
         try:
             n = write_sim_bag(tmp.tmp, args, specs)
         except ValueError as e:

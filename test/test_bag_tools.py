@@ -257,7 +257,7 @@ def test_replay_publishes_the_node_topics_with_the_node_conversion(mcap_run, sim
     diag = read_topic(out, "/diagnostics")
     seconds = np.unique(stamps // 10**9, return_index=True)[1]
     assert [ns for ns, _ in diag] == stamps[seconds].tolist()       # first sample of each 1 s
-    assert diag[-1][1].status[0].name == "sins_align: alignment"
+    assert diag[-1][1].status[0].name == "align_node: alignment"
     kv = {v.key: v.value for v in diag[-1][1].status[0].values}
     assert kv["state"] == "aligned" and kv["input_rate_hz"] == "100.00"
 
@@ -414,7 +414,7 @@ def test_block_fed_replay_of_a_units_fault_and_a_1khz_bag(work):
 
 def test_params_yaml_is_the_node_format_and_flags_override_it(work, sim_bag, capsys):
     y = work / "align.yaml"
-    y.write_text("sins_align:\n  ros__parameters:\n    latitude: 34.0\n    model: conventional\n"
+    y.write_text("align_node:\n  ros__parameters:\n    latitude: 34.0\n    model: conventional\n"
                  "    backtrack_time: 30.0\n")
     js = work / "params.json"
     rc, _, err = cli(replay, [sim_bag, "--params", y, "--model", "constant", "--summary-json",
@@ -564,7 +564,7 @@ def bad_inputs(work, sim_bag):
     w.add_connection("/imu/data_raw", "sensor_msgs/msg/Imu", typestore=typestore())
     w.close()
     (d / "bad_syntax.yaml").write_text("sins_align: [\n")
-    (d / "bad_value.yaml").write_text("sins_align:\n  ros__parameters:\n    latitude: 34.0\n"
+    (d / "bad_value.yaml").write_text("/**:\n  ros__parameters:\n    latitude: 34.0\n"
                                       "    backtrack_time: -1.0\n")
     (d / "no_node.yaml").write_text("other_node:\n  ros__parameters:\n    latitude: 34.0\n")
     (d / "exists").mkdir()

@@ -225,7 +225,7 @@ def test_runtime_parameter_changes_are_checked_and_applied_live(pair, probe):
     fqn = f"{NS}/{NODE}"
     wait_until(lambda: any(m.data for m in pair.aligned.msgs), ALIGN_TIMEOUT, "aligned=true")
     for values, words in [({"max_angular_rate": 1000.0}, "max_angular_rate"),
-                          ({"disturbance_nis": "high"}, "disturbance_nis must be a number"),
+                          ({"disturbance_nis": "high"}, "expected 'Type.DOUBLE'"),
                           ({"aligned_min_level_std": -1.0}, "aligned_min_level_std"),
                           ({"model": "se3"}, "read-only"),
                           ({"euler_rate": 0.0}, "euler_rate")]:

@@ -75,6 +75,31 @@ def test_config_files_installed(install_dir):
         assert (install_dir / 'share' / PKG / 'config' / yaml_file.name).is_file(), yaml_file
 
 
+def test_colcon_writes_setup_bash_that_finds_the_package(install_dir):
+    """`colcon build` writes install/setup.bash (colcon-bash, pinned in .ci/requirements.txt);
+    sourcing it in bash puts the package on the ament index, PYTHONPATH and
+    ros2 run's lib/sins_align path."""
+    install = install_dir.parent
+    setup_bash = install / 'setup.bash'
+    assert setup_bash.is_file(), (
+        f'{setup_bash} missing: colcon wrote {sorted(p.name for p in install.iterdir())} '
+        '(is colcon-bash installed?)')
+    assert (install_dir / 'share' / PKG / 'package.bash').is_file()
+    env = {k: v for k, v in os.environ.items()
+           if k not in ('AMENT_PREFIX_PATH', 'COLCON_PREFIX_PATH', 'PYTHONPATH')}
+    script = (f'source {setup_bash} && '
+              f'python -c "import {PKG}; from ament_index_python.packages import '
+              f'get_package_prefix; print(get_package_prefix(\'{PKG}\')); print({PKG}.__file__)"')
+    env['PATH'] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+    proc = subprocess.run(['bash', '-c', script], cwd=install, env=env, capture_output=True,
+                          text=True, stdin=subprocess.DEVNULL, timeout=60)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    prefix, module = proc.stdout.split()
+    assert Path(prefix).resolve() == install_dir.resolve(), proc.stdout
+    assert Path(module).resolve().is_relative_to(install_dir.resolve()), proc.stdout
+    assert (Path(prefix) / 'lib' / PKG / 'align_node').is_file()
+
+
 def test_package_importable_from_install(install_dir):
     """The installed copy (not the source tree) is what the installed environment imports."""
     proc = subprocess.run(
