@@ -25,6 +25,9 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    # the real data sets (sins_align/data/<set>/: log, README.md, LICENSE) travel with the
+    # package, so sins_align.data finds them in the source tree and in any install
+    package_data={package_name + '.data': ['*/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
