@@ -21,6 +21,18 @@ ENTRY_POINTS = [
     'montecarlo = sins_align.montecarlo:main',
 ]
 
+
+def sample_bags():
+    """data_files entries for bags/: README.md, and each bag directory's files, installed
+    under share/sins_align/bags/ (where `ros2 pkg prefix sins_align` leads)."""
+    entries = [('share/' + package_name + '/bags', ['bags/README.md'])]
+    for bag in sorted(glob(os.path.join('bags', '*', ''))):
+        name = os.path.basename(os.path.dirname(bag))
+        files = sorted(f for f in glob(os.path.join(bag, '*')) if os.path.isfile(f))
+        entries.append(('share/' + package_name + '/bags/' + name, files))
+    return entries
+
+
 setup(
     name=package_name,
     version='0.1.0',
@@ -33,6 +45,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config',
          sorted(glob(os.path.join(package_name, 'config', '*.yaml')))),
+        *sample_bags(),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -448,6 +448,16 @@ def test_psins_log_import_and_replay_agree_from_a_large_initial_error(work, caps
     imu = read_topic(bag, "/imu/data_raw")
     assert len(imu) == 30000 and imu[0][1].header.frame_id == "imu_link"
     assert stamp_ns(imu[0][1]) == 10_000_000 and stamp_ns(imu[-1][1]) == 300_000_000_000
+    # the shipped sample bag is this import (bags/README.md gives the command)
+    shipped = read_topic(Path(__file__).resolve().parents[1] / "bags" / "lasergyro_300s",
+                         "/imu/data_raw")
+    assert len(shipped) == len(imu)
+    for (_, m), (_, s) in zip(imu, shipped):
+        assert stamp_ns(m) == stamp_ns(s) and m.header.frame_id == s.header.frame_id
+        assert (m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) == \
+            (s.angular_velocity.x, s.angular_velocity.y, s.angular_velocity.z)
+        assert (m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z) == \
+            (s.linear_acceleration.x, s.linear_acceleration.y, s.linear_acceleration.z)
     # the file's coarse attitude (PSINS pitch, roll, yaw) -> REP-103 rpy of its RFU axes
     rpy0 = rpy_from_dcm(psins_att_to_dcm(np.array([0.9, 0.4, -90.6]) * DEG)) / DEG
     small = rpy0 + np.array([0.5, -0.5, 2.0])
