@@ -77,6 +77,38 @@ def test_config_files_installed(install_dir):
         assert (install_dir / 'share' / PKG / 'config' / yaml_file.name).is_file(), yaml_file
 
 
+def test_package_importable_from_install(install_dir):
+    """The installed copy (not the source tree) is what the installed environment imports."""
+    proc = subprocess.run(
+        [sys.executable, '-c', f'import {PKG}; print({PKG}.__file__)'],
+        cwd=install_dir, env=installed_env(install_dir), capture_output=True, text=True,
+        stdin=subprocess.DEVNULL, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert Path(proc.stdout.strip()).resolve().is_relative_to(install_dir.resolve()), proc.stdout
+
+
+@pytest.mark.parametrize('exe', executable_names())
+def test_executable_installed_in_lib_pkg(install_dir, exe):
+    """`ros2 run sins_align <exe>` needs lib/sins_align/<exe> (setup.cfg install_scripts)."""
+    path = install_dir / 'lib' / PKG / exe
+    assert path.is_file(), f'{path} missing'
+    assert os.access(path, os.X_OK), f'{path} is not executable'
+
+
+@pytest.mark.parametrize('exe', executable_names())
+def test_executable_help_exits_zero(install_dir, exe):
+    """Each installed executable runs and answers --help with exit status 0."""
+    path = install_dir / 'lib' / PKG / exe
+    try:
+        proc = subprocess.run([str(path), '--help'], cwd=install_dir,
+                              env=installed_env(install_dir), capture_output=True, text=True,
+                              stdin=subprocess.DEVNULL, timeout=60)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f'{exe} --help did not exit within 60 s (handle --help before spinning)')
+    assert proc.returncode == 0, (
+        f'{exe} --help exited {proc.returncode}:\n{proc.stdout}\n{proc.stderr}')
+
+
 def _tree(root: Path) -> dict[str, int]:
     """relative path -> size of every file under root (caches excluded)."""
     return {str(p.relative_to(root)): p.stat().st_size for p in sorted(root.rglob('*'))
@@ -133,38 +165,6 @@ def test_installed_replay_runs_on_the_installed_real_bag(install_dir, tmp_path):
     inst, src = res['installed'], res['source']
     assert inst['samples'] == 30000 and inst['rejected'] == {} and inst['aligned'] is True
     assert inst['final'] == src['final'] and inst['time_to_aligned_s'] == src['time_to_aligned_s']
-
-
-def test_package_importable_from_install(install_dir):
-    """The installed copy (not the source tree) is what the installed environment imports."""
-    proc = subprocess.run(
-        [sys.executable, '-c', f'import {PKG}; print({PKG}.__file__)'],
-        cwd=install_dir, env=installed_env(install_dir), capture_output=True, text=True,
-        stdin=subprocess.DEVNULL, timeout=60)
-    assert proc.returncode == 0, proc.stderr
-    assert Path(proc.stdout.strip()).resolve().is_relative_to(install_dir.resolve()), proc.stdout
-
-
-@pytest.mark.parametrize('exe', executable_names())
-def test_executable_installed_in_lib_pkg(install_dir, exe):
-    """`ros2 run sins_align <exe>` needs lib/sins_align/<exe> (setup.cfg install_scripts)."""
-    path = install_dir / 'lib' / PKG / exe
-    assert path.is_file(), f'{path} missing'
-    assert os.access(path, os.X_OK), f'{path} is not executable'
-
-
-@pytest.mark.parametrize('exe', executable_names())
-def test_executable_help_exits_zero(install_dir, exe):
-    """Each installed executable runs and answers --help with exit status 0."""
-    path = install_dir / 'lib' / PKG / exe
-    try:
-        proc = subprocess.run([str(path), '--help'], cwd=install_dir,
-                              env=installed_env(install_dir), capture_output=True, text=True,
-                              stdin=subprocess.DEVNULL, timeout=60)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f'{exe} --help did not exit within 60 s (handle --help before spinning)')
-    assert proc.returncode == 0, (
-        f'{exe} --help exited {proc.returncode}:\n{proc.stdout}\n{proc.stderr}')
 
 
 def _declared_depends(tag_names: tuple[str, ...]) -> set[str]:
