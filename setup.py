@@ -21,15 +21,31 @@ ENTRY_POINTS = [
     'montecarlo = sins_align.montecarlo:main',
 ]
 
+
+def sample_bags():
+    """data_files entries for bags/: README.md, and each bag directory's files, installed
+    under share/sins_align/bags/ (where `ros2 pkg prefix sins_align` leads)."""
+    entries = [('share/' + package_name + '/bags', ['bags/README.md'])]
+    for bag in sorted(glob(os.path.join('bags', '*', ''))):
+        name = os.path.basename(os.path.dirname(bag))
+        files = sorted(f for f in glob(os.path.join(bag, '*')) if os.path.isfile(f))
+        entries.append(('share/' + package_name + '/bags/' + name, files))
+    return entries
+
+
 setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    # the real data sets (sins_align/data/<set>/: log, README.md, LICENSE) travel with the
+    # package, so sins_align.data finds them in the source tree and in any install
+    package_data={package_name + '.data': ['*/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config',
          sorted(glob(os.path.join(package_name, 'config', '*.yaml')))),
+        *sample_bags(),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -152,11 +152,6 @@ class StampClock:
             self.epoch = int(sec)
         return float(int(sec) - self.epoch) + int(nanosec) * 1e-9
 
-    def to_stamp(self, t: float) -> tuple[int, int]:
-        """Inverse of ``__call__`` (rounded to the nanosecond)."""
-        ns = int(round(t * 1e9)) + (self.epoch or 0) * 1_000_000_000
-        return ns // 1_000_000_000, ns % 1_000_000_000
-
 
 def imu_sample(msg, clock: StampClock) -> tuple[float, np.ndarray, np.ndarray]:
     """(stamp s, gyro rad/s (3,), specific force m/s^2 (3,)) from a sensor_msgs/Imu.

@@ -1,7 +1,7 @@
 """Reader for the PSINS "compact SIMU" text format, and the PSINS Euler-angle convention.
 
-File format (PSINS ``imufile``; see ``shared/data/psins-lasergyro/README.md``)
------------------------------------------------------------------------------
+File format (PSINS ``imufile``; see ``sins_align/data/psins-lasergyro/README.md``)
+---------------------------------------------------------------------------------
 - Lines starting with ``%`` are comments; blank lines are ignored (anywhere in the file).
 - Three header data lines, six numbers each:
 
@@ -26,6 +26,7 @@ body x axis from East); convert through the DCM.
 """
 from __future__ import annotations
 
+import lzma
 import os
 from dataclasses import dataclass
 
@@ -89,6 +90,32 @@ class PsinsLog:
         return self.n * self.ts
 
 
+#: first bytes of every xz file (the .xz container's magic number)
+XZ_MAGIC = b"\xfd7zXZ\x00"
+
+
+def read_text(path: str | os.PathLike) -> str:
+    """The text of a log file, decompressed when it is an xz file (told by its first bytes,
+    not its name). UTF-8; undecodable bytes become U+FFFD (the parsers report the line).
+
+    Raises
+    ------
+    OSError — the file cannot be read. ValueError — it starts like an xz file but does
+    not decompress (truncated, corrupted).
+    """
+    name = os.fspath(path)
+    with open(name, "rb") as fh:
+        xz = fh.read(len(XZ_MAGIC)) == XZ_MAGIC
+    if not xz:
+        with open(name, "r", encoding="utf-8", errors="replace") as fh:
+            return fh.read()
+    try:
+        with lzma.open(name, "rt", encoding="utf-8", errors="replace") as fh:
+            return fh.read()
+    except (lzma.LZMAError, EOFError) as e:
+        raise ValueError(f"{name}: not a readable xz file ({e})") from None
+
+
 def _is_skipped(parts: list[str]) -> bool:
     return not parts or parts[0].startswith("%")
 
@@ -114,7 +141,8 @@ def read_psins(path: str | os.PathLike, max_samples: int | None = None) -> Psins
 
     Parameters
     ----------
-    path : str or PathLike — the ``.imu`` text file.
+    path : str or PathLike — the ``.imu`` text file, or that file compressed with xz
+        (``.imu.xz``, e.g. :data:`sins_align.data.LASERGYRO`), read the same way.
     max_samples : int, optional — read at most this many data lines (must be >= 1).
 
     Returns
@@ -124,7 +152,7 @@ def read_psins(path: str | os.PathLike, max_samples: int | None = None) -> Psins
     Raises
     ------
     ValueError
-        Malformed file, with the file name and 1-based line number: missing or wrong header
+        An xz file that does not decompress, or a malformed file, with the file name and 1-based line number: missing or wrong header
         lines (each must have 6 finite numbers; ts, g and the scale factors must be positive,
         |lat| <= 90 deg), a data line without exactly 6 fields, a non-numeric or non-finite
         value, or no data line at all.
@@ -132,8 +160,7 @@ def read_psins(path: str | os.PathLike, max_samples: int | None = None) -> Psins
     name = os.fspath(path)
     if max_samples is not None and (int(max_samples) != max_samples or max_samples < 1):
         raise ValueError(f"max_samples must be a positive integer, got {max_samples!r}")
-    with open(name, "r", encoding="utf-8", errors="replace") as fh:
-        lines = fh.read().splitlines()
+    lines = read_text(name).splitlines()
 
     # --- the three header data lines -------------------------------------------------------
     header: list[np.ndarray] = []

@@ -221,11 +221,6 @@ def so3_log(C: np.ndarray) -> np.ndarray:
     return rotvec_from_quat(quat_from_dcm(C))
 
 
-def orthonormalize(C: np.ndarray) -> np.ndarray:
-    """Nearest rotation matrix (via the quaternion), removes round-off drift."""
-    return dcm_from_quat(quat_from_dcm(C))
-
-
 def dcm_from_rpy(rpy: np.ndarray) -> np.ndarray:
     """DCM ``Rz(yaw) Ry(pitch) Rx(roll)`` from REP-103 [roll, pitch, yaw], rad."""
     rpy = np.asarray(rpy, dtype=float)

@@ -26,7 +26,7 @@ def colcon_build(ws: Path) -> Path:
     for name in ('package.xml', 'setup.py', 'setup.cfg'):
         shutil.copy2(REPO_ROOT / name, src / name)
     ignore = shutil.ignore_patterns('__pycache__', '*.pyc', '.venv', '*.egg-info')
-    for name in ('resource', PKG):
+    for name in ('resource', 'bags', PKG):
         shutil.copytree(REPO_ROOT / name, src / name, ignore=ignore)
 
     colcon = VENV_BIN / 'colcon'

@@ -37,14 +37,3 @@ def pytest_report_header(config):
 def repo_root() -> Path:
     """The repository root (the parent of test/)."""
     return REPO_ROOT
-
-
-@pytest.fixture(scope='session')
-def shared_dir() -> Path:
-    """The project's shared/ folder, which sits beside the repository (../shared)."""
-    path = (REPO_ROOT / '..' / 'shared').resolve()
-    if not path.is_dir():
-        pytest.fail(f'shared/ folder not found at {path}: it must sit beside the repository '
-                    f'({REPO_ROOT}), as it does in CI and in the developers\' work trees.',
-                    pytrace=False)
-    return path

@@ -10,7 +10,7 @@ import pytest
 
 from sins_align.estimator import JUMP_CONFIRM, REJECT_REASONS, Aligner, AlignConfig, AlignmentFilter
 from sins_align.kalman import nis
-from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, so3_log
+from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm, so3_log
 from sins_align.sim import SwayProfile, simulate
 from sins_align.specs import DEG, DPH, UG, limit_error
 
@@ -67,9 +67,14 @@ def test_paper_scenario_level_at_limit_within_seconds(r, t_level):
 
 
 def test_paper_scenario_all_models_converge_constant_fastest():
-    """One-pass paper filter (update at every sample, no backtrack): all three models
-    converge from [89, 89, 179];
-    at 60 s the constant model's heading error is the smallest and within 3x the limit."""
+    """One-pass paper filter (update at every sample, no backtrack), noise-free, from
+    [89, 89, 179]: without noise the error converges to the limit error itself (the biases'
+    fixed point), so "settled" (the 1.2x of the settling times) means within 20 % of the
+    limit around it. The constant model is settled on every axis at 200 s (before:
+    |limit| + 0.3 deg, on a 0.043 deg result); the conventional and SE(3) models converge
+    more slowly: level settled at 200 s, and the heading error beyond the limit shrinks at
+    every check and at least halves from 100 s to 200 s. At 60 s the constant model's
+    heading error is the smallest and within 3x the limit."""
     s = simulate(200, 100, 34.0, specs="navigation", seed=7, noise=False, **PAPER_BIAS)
     lim = limits([s], 34.0)[0]
     head = {}
@@ -77,9 +82,16 @@ def test_paper_scenario_all_models_converge_constant_fastest():
         cfg = AlignConfig(latitude_deg=34.0, model=model, backtrack=False,
                           coarse_update_period=0.0)
         res = dict((T, e[0]) for T, e, _ in run_filter(cfg, (s.C0 @ PAPER_ERR.T)[None], [s],
-                                                        [60, 200]))
+                                                        [60, 100, 150, 200]))
         head[model] = abs(res[60][2])
-        assert np.all(np.abs(res[200]) < np.abs(lim) + 0.3 * DEG), (model, res[200] / DEG)
+        off = np.abs(res[200] - lim)
+        if model == "constant":
+            assert np.all(off <= 0.2 * np.abs(lim)), (res[200] / DEG, lim / DEG)
+            continue
+        assert np.all(off[:2] <= 0.2 * np.abs(lim[:2])), (model, res[200] / DEG, lim / DEG)
+        beyond = [abs(res[T][2] - lim[2]) for T in (100, 150, 200)]
+        assert beyond[0] > beyond[1] > beyond[2], (model, np.array(beyond) / DEG)
+        assert beyond[2] <= 0.5 * beyond[0], (model, np.array(beyond) / DEG)
     assert head["constant"] <= 3 * abs(lim[2])
     assert head["constant"] < head["conventional"] and head["constant"] < head["se3"]
 
@@ -129,18 +141,27 @@ def chi2_bounds(dof, p=0.95):
 @pytest.mark.parametrize("sway", ["none", "car"])
 def test_nees_inside_chi_square_bounds(sway):
     """100 runs, biases drawn from the navigation specs, random initial attitudes: after
-    convergence (100-300 s) the mean attitude NEES with the published covariance stays in
-    its two-sided 95% chi-square interval (300 dof) — neither over- nor under-confident."""
+    convergence (100-300 s) the mean attitude NEES with the *published* covariance
+    (``Aligner.covariance``, what the node puts in orientation_covariance) stays in its
+    two-sided 95% chi-square interval (300 dof) — neither over- nor under-confident."""
     n, lat = 100, 34.0
     rng = np.random.default_rng(11)
     sims = [simulate(300, 100, lat, rpy_deg=tuple(rng.uniform(-180, 180, 3) * [1, 0.5, 1]),
                      specs="navigation", sway=sway, seed=500 + i) for i in range(n)]
     lo, hi = chi2_bounds(3 * n)
-    for T, e, fl in run_filter(AlignConfig(latitude_deg=lat), uniform_so3(n, rng), sims,
-                               [100, 150, 200, 250, 300]):
-        P = np.broadcast_to(fl.total_covariance()[:, :3, :3], (n, 3, 3))
-        nees = np.einsum("ni,ni->n", e, np.linalg.solve(P, e[..., None])[..., 0])
-        assert lo <= nees.sum() <= hi, (T, nees.mean(), lo / n, hi / n)
+    starts = uniform_so3(n, rng)
+    aligners = [make_aligner(latitude_deg=lat,
+                             initial_rpy_deg=tuple(rpy_from_dcm(C) / DEG)) for C in starts]
+    k = 0
+    for T in (100, 150, 200, 250, 300):
+        m = int(round(T * 100))
+        nees = 0.0
+        for al, s in zip(aligners, sims):
+            al.update(s.t[k:m], s.gyro[k:m], s.accel[k:m])
+            e = attitude_error(s.C_true[m - 1], al.dcm)
+            nees += float(e @ np.linalg.solve(al.covariance, e))
+        k = m
+        assert lo <= nees <= hi, (T, nees / n, lo / n, hi / n)
 
 
 # ---------------------------------------------------------------- streaming API

@@ -242,9 +242,13 @@ def test_paper_ordering_constant_model_fastest(paper):
     assert settle["constant"] < min(settle["conventional"], settle["se3"]), settle
     # level axes at the limit within a few seconds (ALGORITHM.md: 5 s; README: 8 s)
     assert max(c["constant"]["settle"]["max_s"][:2]) <= 12.0
-    # all three converge: level at 1.2 x limit by the end, heading below 1 deg
+    # all three converge: every run's level within 1.2 x |limit| by the end (plus 2 x the
+    # filter's own noise std, the ARW/VRW scatter, as at 150 s below), heading below 1 deg
+    lim = np.abs(paper["res"]["limit"]["mean_deg"])
     for m in mc.MODELS:
-        fin = c[m]["max_abs_deg"][-1]
+        fin = np.array(c[m]["max_abs_deg"][-1])
+        noise = np.array(c[m]["noise_std_mean_deg"][-1])
+        assert np.all(fin[:2] <= 1.2 * lim[:2] + 2.0 * noise[:2]), (m, fin, lim, noise)
         assert fin[2] < 1.0, (m, fin)
 
 

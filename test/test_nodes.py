@@ -349,31 +349,35 @@ def test_align_yaml_lists_every_parameter_with_its_default():
 
 
 # ---------------------------------------------------------------------------- bad input
-BAD_NS = f"/bad_{RUN}"
-BAD_NODE = f"align_bad_{RUN}"
-BAD_STATUS = f"{BAD_NODE}: alignment"
 BAD_EACH = 5          # samples of each defect
+_BAD_NODES = iter(range(1_000_000))
 
 
-@pytest.fixture(scope="module")
-def bad(probe, tmp_path_factory):
-    """An align_node fed by the test itself (nominal 50 Hz, 5 s units-check window)."""
-    logs = tmp_path_factory.mktemp("bad")
+@pytest.fixture
+def bad(probe, tmp_path):
+    """A fresh align_node for each test (each stands alone), fed by the test itself
+    (nominal 50 Hz, 5 s units-check window); its own namespace and node name."""
+    k = next(_BAD_NODES)
+    ns, name = f"/bad{k}_{RUN}", f"align_bad{k}_{RUN}"
     diags = probe.subscribe(DiagnosticArray, "/diagnostics", 50, maxlen=200)
-    out = probe.subscribe(Imu, f"{BAD_NS}/imu/data", RELIABLE_DEEP)
+    out = probe.subscribe(Imu, f"{ns}/imu/data", RELIABLE_DEEP)
     node = NodeProcess("align_node", [
-        "-r", f"__ns:={BAD_NS}", "-r", f"__node:={BAD_NODE}", "-p", "latitude:=34.0",
-        "-p", f"rate:={RATE}", "-p", "units_check_window:=5.0"], logs, BAD_NODE)
-    pub = probe.node.create_publisher(Imu, f"{BAD_NS}/imu/data_raw", qos_profile_sensor_data)
+        "-r", f"__ns:={ns}", "-r", f"__node:={name}", "-p", "latitude:=34.0",
+        "-p", f"rate:={RATE}", "-p", "units_check_window:=5.0"], tmp_path, name)
+    pub = probe.node.create_publisher(Imu, f"{ns}/imu/data_raw", qos_profile_sensor_data)
     try:
-        wait_until(lambda: pub.get_subscription_count() > 0 or not node.alive(), 30.0,
-                   "align_node to subscribe")
+        wait_until(lambda: (pub.get_subscription_count() > 0
+                            and out.subscription.get_publisher_count() > 0)
+                   or not node.alive(), 30.0, "align_node to subscribe and publish imu/data")
         assert node.alive(), node.output()
         time.sleep(0.5)
-        yield SimpleNamespace(node=node, pub=pub, diags=diags, out=out, sent=0)
+        yield SimpleNamespace(node=node, pub=pub, diags=diags, out=out, sent=0,
+                              status=f"{name}: alignment")
     finally:
         node.stop()
         probe.node.destroy_publisher(pub)
+        probe.unsubscribe(diags)
+        probe.unsubscribe(out)
 
 
 def _imu(t: float, w, f, frame: str = "imu_link") -> Imu:
@@ -397,14 +401,14 @@ def _send(bad, msgs, per_burst: int = 10, pause: float = 0.02):
 def _accounted(bad):
     """Diagnostics once every sent sample is used, rejected or the first one."""
     def done():
-        d = latest_diag(bad.diags, BAD_STATUS)
+        d = latest_diag(bad.diags, bad.status)
         if d and int(d["samples_used"]) + int(d["samples_rejected"]) + 1 == bad.sent:
             return d
         return None
     try:
         return wait_until(done, 15.0, f"diagnostics accounting for {bad.sent} samples")
     except AssertionError as e:
-        raise AssertionError(f"{e}: {latest_diag(bad.diags, BAD_STATUS)}\n"
+        raise AssertionError(f"{e}: {latest_diag(bad.diags, bad.status)}\n"
                              f"{bad.node.output()}") from None
 
 
@@ -465,27 +469,41 @@ def test_bad_samples_are_counted_by_reason_and_the_node_keeps_going(bad):
     assert d["state"] == "aligning", d
     assert int(d["samples_used"]) > used_before + 5 * RATE, d
     assert bad.node.alive()
-    bad.t_end = t_c + c.t[-1]
+
+
+def _good_start(bad, seconds: float, seed: int, defects: bool = False) -> float:
+    """Send ``seconds`` of clean samples from T0 (with ``defects``: also one NaN sample and
+    one duplicate stamp, which are rejected); wait until they are accounted for; return the
+    last stamp sent."""
+    a = simulate(seconds, rate=RATE, seed=seed)
+    msgs = [_imu(T0 + a.t[k], a.gyro[k], a.accel[k]) for k in range(len(a.t))]
+    if defects:
+        msgs.insert(10, _imu(T0 + a.t[9] + 0.5 / RATE, [math.nan, 0.0, 0.0], a.accel[9]))
+        msgs.insert(20, _imu(T0 + a.t[18], a.gyro[18], a.accel[18]))
+    _send(bad, msgs)
+    _accounted(bad)
+    return T0 + a.t[-1]
 
 
 def test_undecodable_messages_are_counted_and_the_node_keeps_going(bad):
     """Bytes that are no sensor_msgs/Imu (truncated, garbage after a CDR header) reach the
     raw subscription: each is counted as 'undecodable', warned about by name, never
     republished, and the samples around them are used as usual."""
-    t_end = getattr(bad, "t_end", None)
-    if t_end is None:
-        pytest.fail("needs the stream of the previous test")
+    t_end = _good_start(bad, 2.0, seed=16)
     good = serialize_message(_imu(0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 9.8]))
     junk = [b"\x00\x01\x00\x00\x01\x02", good[:40], b"\x00\x01\x00\x00" + b"\xff" * 300]
     a = simulate(2.0, rate=RATE, seed=15)
     d0 = _accounted(bad)
-    used0, out0 = int(d0["samples_used"]), bad.out.count
+    used0 = int(d0["samples_used"])
+    wait_until(lambda: bad.out.count == used0 + 1, 5.0, "imu/data for the first samples")
+    out0 = bad.out.count
     msgs = []
     for k in range(len(a.t)):
         msgs.append(_imu(t_end + a.t[k], a.gyro[k], a.accel[k]))
         if k % 25 == 10:
             msgs.append(junk[(k // 25) % len(junk)])
     n_junk = sum(isinstance(m, bytes) for m in msgs)
+    assert n_junk == 4
     _send(bad, msgs)
     d = _accounted(bad)
     assert d.get("rejected_undecodable") == str(n_junk), d
@@ -493,23 +511,24 @@ def test_undecodable_messages_are_counted_and_the_node_keeps_going(bad):
     assert bad.node.alive(), bad.node.output()
     wait_until(lambda: bad.out.count == out0 + len(a.t), 5.0, "imu/data for the good samples")
     assert "sample(s): undecodable" in bad.node.stderr()
-    bad.t_end = t_end + a.t[-1]
 
 
 def test_stamps_jumping_back_restart_the_alignment(bad):
     """Stamps far behind the last one (a bag loop) restart the alignment after a few samples;
-    a single late sample would only be rejected."""
-    t_end = getattr(bad, "t_end", None)
-    if t_end is None:
-        pytest.fail("needs the stream of the previous test")
+    a single late sample would only be rejected. The rejection counters (two bad samples
+    before the jump) survive the restart."""
+    t_end = _good_start(bad, 3.0, seed=17, defects=True)
     a = simulate(1.0, rate=RATE, seed=14)
     t0 = t_end - 100.0
     d0 = _accounted(bad)
+    assert int(d0["samples_rejected"]) == 2 and d0["resets"] == "0", d0
     _send(bad, [_imu(t0 + a.t[k], a.gyro[k], a.accel[k]) for k in range(len(a.t))])
 
-    def restarted():
-        d = latest_diag(bad.diags, BAD_STATUS)
-        return d if d and d["resets"] == "1" and int(d["samples_used"]) > 0 else None
+    def restarted():      # after the restart, and once every sample sent is accounted for
+        d = latest_diag(bad.diags, bad.status)
+        done = d and int(d["samples_used"]) + int(d["samples_rejected"]) == \
+            len(a.t) + int(d0["samples_rejected"]) - 1
+        return d if done and d["resets"] == "1" else None
     d = wait_until(restarted, 10.0, "a restart after the stamps jumped back")
     n_confirm = BACKWARD_JUMP_CONFIRM
     back = t_end - (t0 + a.t[n_confirm - 1])

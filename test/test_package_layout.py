@@ -2,13 +2,15 @@
 
 A copy of the package source is built with the venv's colcon (colcon-ros from PyPI) into a
 temporary workspace (test/colcon_build.py, one build per session); the tests check the
-installed layout that ``ros2 run`` relies on and run every installed executable with
-``--help``. A second group checks that package.xml declares an ``exec_depend`` for every ROS
+installed layout that ``ros2 run`` relies on (executables, config, the sample bags, the real
+data inside the package) and run every installed executable with ``--help`` (and replay on
+the installed real-data bag). A second group checks that package.xml declares an ``exec_depend`` for every ROS
 package the code imports.
 """
 from __future__ import annotations
 
 import ast
+import json
 import os
 import subprocess
 import sys
@@ -130,6 +132,64 @@ def test_executable_help_exits_zero(install_dir, exe):
         pytest.fail(f'{exe} --help did not exit within 60 s (handle --help before spinning)')
     assert proc.returncode == 0, (
         f'{exe} --help exited {proc.returncode}:\n{proc.stdout}\n{proc.stderr}')
+
+
+def _tree(root: Path) -> dict[str, int]:
+    """relative path -> size of every file under root (caches excluded)."""
+    return {str(p.relative_to(root)): p.stat().st_size for p in sorted(root.rglob('*'))
+            if p.is_file() and '__pycache__' not in p.parts}
+
+
+def test_sample_bags_installed(install_dir):
+    """bags/ (README.md and every bag directory, byte for byte in size) is installed into
+    share/sins_align/bags/, where `ros2 pkg prefix sins_align` leads from anywhere."""
+    src = _tree(REPO_ROOT / 'bags')
+    assert 'README.md' in src and 'lasergyro_300s/metadata.yaml' in src, sorted(src)
+    assert _tree(install_dir / 'share' / PKG / 'bags') == src
+
+
+def _site_packages(install_dir: Path) -> Path:
+    (site,) = (install_dir / 'lib').glob('python3*/site-packages')
+    return site
+
+
+def test_real_data_installed_with_the_package(install_dir):
+    """sins_align/data (the xz log, its README.md and LICENSE) is installed with the package,
+    and the installed package finds and reads it there."""
+    src = _tree(REPO_ROOT / PKG / 'data')
+    assert 'psins-lasergyro/lasergyro.imu.xz' in src and 'psins-lasergyro/LICENSE' in src
+    assert _tree(_site_packages(install_dir) / PKG / 'data') == src
+    code = ('from sins_align.data import LASERGYRO; from sins_align.psins import read_psins; '
+            'print(LASERGYRO); print(read_psins(LASERGYRO).n)')
+    proc = subprocess.run([sys.executable, '-c', code], cwd=install_dir,
+                          env=installed_env(install_dir), capture_output=True, text=True,
+                          stdin=subprocess.DEVNULL, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    path, n = proc.stdout.split()
+    assert Path(path).resolve().is_relative_to(install_dir.resolve()) and n == '184718'
+
+
+def test_installed_replay_runs_on_the_installed_real_bag(install_dir, tmp_path):
+    """`ros2 run sins_align replay` on the installed real-data bag (what the README shows)
+    uses all 30,000 samples, aligns, and gives exactly what the source tree's replay gives
+    on the repository's bags/lasergyro_300s."""
+    args = ['--latitude', '34.246048', '--height', '380', '--quiet', '--summary-json']
+    runs = {'installed': ([str(install_dir / 'lib' / PKG / 'replay'),
+                           str(install_dir / 'share' / PKG / 'bags' / 'lasergyro_300s')],
+                          installed_env(install_dir)),
+            'source': ([sys.executable, '-m', 'sins_align.replay',
+                        str(REPO_ROOT / 'bags' / 'lasergyro_300s')], None)}
+    res = {}
+    for name, (cmd, env) in runs.items():
+        js = tmp_path / f'{name}.json'
+        proc = subprocess.run([*cmd, *args, str(js)], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, stdin=subprocess.DEVNULL,
+                              timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        res[name] = json.loads(js.read_text())
+    inst, src = res['installed'], res['source']
+    assert inst['samples'] == 30000 and inst['rejected'] == {} and inst['aligned'] is True
+    assert inst['final'] == src['final'] and inst['time_to_aligned_s'] == src['time_to_aligned_s']
 
 
 def _declared_depends(tag_names: tuple[str, ...]) -> set[str]:

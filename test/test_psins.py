@@ -1,19 +1,19 @@
 """Tests for the PSINS compact-SIMU reader, the PSINS Euler convention and coarse alignment.
 
-The real log is read from the repository's sibling ``shared`` directory (never copied here).
+The real log is the project's own copy, ``sins_align/data/psins-lasergyro/lasergyro.imu.xz``.
 """
-from pathlib import Path
+import hashlib
+import lzma
 
 import numpy as np
 import pytest
 
 from sins_align.coarse import static_coarse_alignment
+from sins_align.data import LASERGYRO as DATA
 from sins_align.earth import OMEGA_IE, earth_rate_enu, gravity_enu
 from sins_align.psins import (ARCSEC, dcm_to_psins_att, psins_att_to_dcm, read_psins)
 from sins_align.rotation import attitude_error, heading_from_dcm, so3_exp
 
-DATA = (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "psins-lasergyro"
-        / "lasergyro.imu")
 DEG = np.pi / 180.0
 DPH = DEG / 3600.0
 
@@ -53,6 +53,19 @@ def _rz(a):
 
 
 # --------------------------------------------------------------------------- real file
+
+def test_shipped_copy_is_the_original_file():
+    """The xz copy decompresses to the original bytes named in its README (size and md5 of
+    PSINS data/lasergyro.imu), and its LICENSE carries the BSD 2-clause copyright line."""
+    raw = lzma.decompress(DATA.read_bytes())
+    assert len(raw) == 2_665_416
+    assert hashlib.md5(raw).hexdigest() == "62e1c12f345f9156146ac280ceaee280"
+    folder = DATA.parent
+    assert "62e1c12f345f9156146ac280ceaee280" in (folder / "README.md").read_text()
+    lic = (folder / "LICENSE").read_text()
+    assert "Copyright (c) 2009-2015, Gongmin Yan, All rights reserved." in lic
+    assert "Redistribution and use in source and binary forms" in lic
+
 
 def test_header_parsed_exactly(log):
     """Every header field of lasergyro.imu lands in the right attribute with the right unit."""
@@ -177,6 +190,35 @@ def test_malformed_files_raise_with_line(tmp_path, text, line, what):
     msg = str(ei.value)
     assert f"bad.imu:{line}:" in msg, msg
     assert what in msg, msg
+
+
+def test_xz_file_reads_like_the_text_it_holds(tmp_path):
+    """A log compressed with xz reads exactly as the plain file, whatever its name (the
+    reader goes by the xz magic bytes); max_samples works on it too."""
+    text = HEADER + "1 2 3 4 5 6\n% c\n-1 0 7 0 0 -80\n2 -4 7 0 2 80\n"
+    plain = read_psins(_write(tmp_path, text, "plain.imu"))
+    for name in ("packed.imu.xz", "packed.imu"):
+        p = tmp_path / name
+        p.write_bytes(lzma.compress(text.encode()))
+        lg = read_psins(p)
+        for field in ("t", "gyro", "accel", "att0_deg", "vel0"):
+            np.testing.assert_array_equal(getattr(lg, field), getattr(plain, field))
+        assert (lg.ts, lg.lat_rad, lg.g_header) == (plain.ts, plain.lat_rad, plain.g_header)
+    assert read_psins(tmp_path / "packed.imu.xz", max_samples=2).n == 2
+
+
+def test_broken_xz_file_raises_with_name(tmp_path):
+    """A truncated xz file is a ValueError naming the file, not an LZMAError or EOFError;
+    a malformed line inside an xz file is reported with its line number as usual."""
+    packed = lzma.compress((HEADER + "0 0 2 0 0 80\n" * 2000).encode())
+    p = tmp_path / "cut.imu.xz"
+    p.write_bytes(packed[: len(packed) // 2])
+    with pytest.raises(ValueError, match="cut.imu.xz: not a readable xz file"):
+        read_psins(p)
+    p = tmp_path / "bad.imu.xz"
+    p.write_bytes(lzma.compress((HEADER + "0 0 2 0 0 80\n0 0 2 0 80\n").encode()))
+    with pytest.raises(ValueError, match="bad.imu.xz:8: data line must have 6 fields"):
+        read_psins(p)
 
 
 def test_bad_header_values_rejected(tmp_path):

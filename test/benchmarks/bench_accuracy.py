@@ -8,14 +8,13 @@ Usage: python test/benchmarks/bench_accuracy.py
    axes stay within 1.2x the limit (noise-free data, so the figure is the filter's own).
 2. Monte Carlo (100 runs, random initial attitudes, biases drawn from the specs): RMS error,
    mean published std and mean NEES at 300 s.
-3. Real data (../shared/data/psins-lasergyro): large vs small initial error, 0-300 s.
+3. Real data (sins_align/data/psins-lasergyro): large vs small initial error, 0-300 s.
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
+from sins_align.data import LASERGYRO
 from sins_align.estimator import Aligner, AlignConfig, AlignmentFilter
 from sins_align.psins import psins_att_to_dcm, read_psins
 from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
@@ -83,11 +82,7 @@ def montecarlo(n=100):
 
 
 def real():
-    path = Path(__file__).resolve().parents[2].parent / "shared/data/psins-lasergyro/lasergyro.imu"
-    if not path.exists():
-        print(f"   {path} not found")
-        return
-    log = read_psins(path, max_samples=30000)
+    log = read_psins(LASERGYRO, max_samples=30000)
     small = psins_att_to_dcm(np.array([0.0, 0.0, -90.6]) * DEG)
     res = []
     for C in (small, small @ ERR):
