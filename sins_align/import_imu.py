@@ -41,6 +41,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
+import lzma
 import re
 import sys
 from decimal import Decimal, InvalidOperation
@@ -54,6 +55,7 @@ from .bagio import (AtomicOutput, CliError, COMPRESSIONS, Messages, STORAGES,
                     qos_profile)
 from .imu_fields import (IMU_FRAME, MAX_STAMP_S, RAW_TOPIC, ImuCovariances, ImuFields,
                          imu_covariances, split_stamp)
+from .psins import XZ_MAGIC
 from .specs import DEG, GRADES, grade_specs
 
 PROG = "import_imu"
@@ -260,12 +262,12 @@ class TextLog:
         """(line number, stamp ns, [gx, gy, gz, ax, ay, az] as given) per data line."""
         try:
             # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the header
-            fh = open(self.path, "r", encoding="utf-8-sig", errors="replace")
+            fh = _open_text(self.path)
         except OSError as e:
             raise CliError(f"cannot read {self.name}: {e.strerror}") from None
         with fh:
             first = True
-            for lineno, line in enumerate(fh, start=1):
+            for lineno, line in enumerate(_lines(fh, self.name), start=1):
                 if lineno <= self.args.skip_rows:
                     continue
                 s = line.strip()
@@ -358,15 +360,34 @@ def _all_numeric(fields: list[str]) -> bool:
     return True
 
 
+def _open_text(path: Path):
+    """A text log opened for reading, through xz when it starts with the xz magic bytes."""
+    with open(path, "rb") as fh:
+        xz = fh.read(len(XZ_MAGIC)) == XZ_MAGIC
+    opener = lzma.open if xz else open
+    return opener(path, "rt", encoding="utf-8-sig", errors="replace")
+
+
+def _lines(fh, name: str) -> Iterator[str]:
+    """The lines of fh; a truncated or corrupt xz stream is one CliError."""
+    try:
+        yield from fh
+    except (lzma.LZMAError, EOFError) as e:
+        raise CliError(f"{name}: not a readable xz file ({e})") from None
+
+
 def _is_psins(path: Path) -> bool:
-    if path.suffix.lower() == ".imu":
+    """A PSINS log by its name (``.imu``, ``.imu.xz``) or by a first line starting with
+    ``%`` (read through xz when the file starts with the xz magic bytes)."""
+    suffixes = [x.lower() for x in path.suffixes[-2:]]
+    if suffixes[-1:] == [".imu"] or suffixes == [".imu", ".xz"]:
         return True
     try:
-        with open(path, "r", encoding="utf-8-sig", errors="replace") as fh:
+        with _open_text(path) as fh:
             for line in fh:
                 if line.strip():
                     return line.lstrip().startswith("%")
-    except OSError:
+    except (OSError, lzma.LZMAError, EOFError):
         return False
     return False
 

@@ -17,6 +17,8 @@ What is proved here:
 from __future__ import annotations
 
 import json
+import lzma
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -436,15 +438,39 @@ def test_params_yaml_is_the_node_format_and_flags_override_it(work, sim_bag, cap
 
 
 # ------------------------------------------------------------------------------ real data
+def test_import_tells_an_xz_compressed_psins_log_by_its_first_line(work, capsys):
+    """A PSINS log under a name that says nothing (``log.xz``) is still read as PSINS: the
+    first line of the decompressed text starts with '%'. A compressed CSV is read as CSV; a
+    truncated one is refused in one line and writes nothing."""
+    renamed = work / "log.xz"
+    shutil.copyfile(LASERGYRO, renamed)
+    rc, out, err = cli(import_imu, [renamed, work / "lg", "--max-samples", 100], capsys)
+    assert rc == 0, err
+    assert "from psins log.xz" in out and "100 samples" in out
+    csv = work / "csv.xz"
+    with lzma.open(csv, "wt") as fh:
+        fh.write("t,gx,gy,gz,ax,ay,az\n" + "".join(
+            f"{0.01 * k},0,0,0,0,0,9.8\n" for k in range(1, 50)))
+    rc, out, err = cli(import_imu, [csv, work / "csv_out"], capsys)
+    assert rc == 0, err
+    assert "49 samples" in out and "from text csv.xz" in out
+    assert len(read_topic(work / "csv_out", "/imu/data_raw")) == 49
+    cut = work / "cut.xz"
+    cut.write_bytes(csv.read_bytes()[:-30])
+    rc, out, err = cli(import_imu, [cut, work / "cut_out"], capsys)
+    assert rc != 0 and "not a readable xz file" in err and len(err.strip().splitlines()) == 1
+    assert not (work / "cut_out").exists()
+
+
 def test_psins_log_import_and_replay_agree_from_a_large_initial_error(work, capsys):
     """import_imu on the project's copy of the real log (xz) + replay from a small and from a
     [89, 89, 179] deg larger error: both agree, and both land within 3 sigma of their
     published std of an independent inertial-frame alignment of the same samples (before:
     level within 0.6 deg of a value 0.5 deg from the start, heading within 1 deg)."""
     bag = work / "lasergyro300"
-    rc, out, err = cli(import_imu, [LASERGYRO, bag, "--format", "psins", "--max-duration", 300],
-                       capsys)
+    rc, out, err = cli(import_imu, [LASERGYRO, bag, "--max-duration", 300], capsys)
     assert rc == 0, err
+    assert "from psins lasergyro.imu.xz" in out      # told a PSINS log by its name (.imu.xz)
     imu = read_topic(bag, "/imu/data_raw")
     assert len(imu) == 30000 and imu[0][1].header.frame_id == "imu_link"
     assert stamp_ns(imu[0][1]) == 10_000_000 and stamp_ns(imu[-1][1]) == 300_000_000_000
