@@ -309,17 +309,21 @@ class AlignmentFilter:
 
     # ------------------------------------------------------------------ one sample
     def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0, dR=None,
-             hole=(0.0, 0.0)):
+             hole=(0.0, 0.0), bridge=None):
         """One accepted IMU sample for every run: w, f (N, 3); dt, gap shared (s).
         ``dR``: exp(w dt) (N, 3, 3), when the caller has it already. ``hole``: (attitude
         rad^2, velocity (m/s)^2) variance per axis of what the motion could have done in
-        ``gap`` seconds of missing samples (added to the covariance, see :meth:`_advance`)."""
+        ``gap`` seconds of missing samples (added to the covariance, see :meth:`_advance`).
+        ``bridge``: (rate, specific force) in body axes (3,) each that stand in for the gap's
+        missing samples (the recent means; None: the state is held)."""
         if dR is None:
             dR = so3_exp(w * dt)
         if self._buf is not None and not self.backtracked:
-            self._buf.append(dt, w, f, gap, hole)
+            self._buf.append(dt, w, f, gap, hole, bridge)
+            if gap > 0.0 and bridge is not None:
+                self._B = self._B @ so3_exp(np.asarray(bridge[0], float) * gap)
             self._B = self._B @ dR
-        self._advance(dt, w, f, gap, dR, hole)
+        self._advance(dt, w, f, gap, dR, hole, bridge)
         if self._backtrack_due(dt):
             self.backtrack()
 
@@ -714,12 +718,21 @@ class AlignmentFilter:
         self._node = None
         self.S = Phi @ self.S + self.Gamma * dt
 
-    def _advance(self, dt, w, f, gap, dR=None, hole=(0.0, 0.0)):
+    def _advance(self, dt, w, f, gap, dR=None, hole=(0.0, 0.0), bridge=None):
         """Mechanization (paper eq. 1), covariance propagation, and an update when due.
         ``dR``: exp(w dt), when the caller has it already."""
         if gap > 0.0:
-            # bridged as static: the state stays, the errors grow over the gap
+            # bridged as static: the errors grow over the gap, and when the recent mean rate
+            # and specific force are given the state is mechanized with them over the gap as
+            # one step (the velocity then carries the level error's signal C f + g as the
+            # error model says; a velocity held still would contradict the model's coupling
+            # of velocity and attitude errors and bias the heading)
             self._propagate(self._F(-self.g_n + 0.0 * self.v), gap)
+            if bridge is not None:
+                wb, fb = (np.asarray(b, float) for b in bridge)
+                self.C = self._earth_step(gap) @ self.C @ so3_exp(wb * gap)
+                self.v = self.v + ((self.C @ fb) + self.g_n) * gap
+                self.t_int += gap
         va, vv = hole
         if va > 0.0 or vv > 0.0:
             # samples were missing: what the motion could have done meanwhile (Aligner)
@@ -914,10 +927,13 @@ class AlignmentFilter:
         """
         c = self.config
         C0 = so3_exp(self.w_ie * self.t_int) @ self.C @ np.swapaxes(self._B, -1, -2)
-        dt, w, f, gap, hole = self._buf.arrays()
-        u = start_frame_increments(dt, w, f)     # shared by the two analyses of the buffer
-        C0, std0, v0 = self._fine_start(C0, dt, w, f, u)
-        r_std, self.fine_period = self._sway_velocity_std(C0, dt, w, f, u)
+        dt, w, f, gap, hole, bridge = self._buf.arrays()
+        # the analyses of the buffer see a gap as one sample of its bridging means (the time
+        # line stays whole: Earth rate and gravity are matched against time)
+        adt, aw, af = _bridged(dt, w, f, gap, bridge)
+        u = start_frame_increments(adt, aw, af)     # shared by the two analyses
+        C0, std0, v0 = self._fine_start(C0, adt, aw, af, u)
+        r_std, self.fine_period = self._sway_velocity_std(C0, adt, aw, af, u)
         self.fine_R_std = r_std
         R = np.zeros((self.n, 3, 3))
         R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
@@ -937,7 +953,9 @@ class AlignmentFilter:
         for a, b, regular in pieces:
             if not regular:
                 for k in range(a, b):
-                    self._advance(float(dt[k]), w[k], f[k], float(gap[k]), None, tuple(hole[k]))
+                    self._advance(float(dt[k]), w[k], f[k], float(gap[k]), None,
+                                  tuple(hole[k]),
+                                  (bridge[k, :3], bridge[k, 3:]) if gap[k] > 0.0 else None)
                 continue
             d = dt[a:b]
             mean = float(d.mean())
@@ -1437,25 +1455,44 @@ class Aligner:
                 return self._reject("rates_look_like_deg_per_s")
         if math.sqrt(float(w @ w)) > c.max_angular_rate:
             return self._reject("rate_too_high")
-        gap, hole = 0.0, (0.0, 0.0)
+        gap, hole, bridge = 0.0, (0.0, 0.0), None
+        w_in, f_in = w, f
         if nom is not None and dt > HOLE_RATIO * nom:
             # samples are missing (lost, or rejected). Up to gap_ratio intervals this one is
-            # integrated over the whole interval (its rate stands in for the missing ones);
-            # beyond, it covers one nominal interval and the rest is bridged as static.
-            # Either way the covariance grows by what the motion seen before could have
-            # done meanwhile (Aligner._recent)
+            # integrated over the whole interval (see below what stands in for the missing
+            # samples); beyond, it covers one nominal interval and the rest is bridged as
+            # static with the recent means. Either way the covariance grows by the error
+            # that bridge makes on the motion seen before (Aligner._recent)
             missing = dt - nom
+            rec = self._recent
             if dt > c.gap_ratio * nom:
                 gap, dt = missing, nom
                 self.events["gap"] += 1
-            hole = self._recent.hole_variance(missing, nom, gap == 0.0)
+                hole = rec.hole_variance(missing, nom, False, w, f)
+            else:
+                # a short hole: for the rate and the specific force each, the next sample held
+                # over it or the recent mean standing in for the missing samples, whichever
+                # errs less on the recent motion (held for a smooth sway, the mean when noise
+                # dominates: holding one noisy sample multiplies its noise by the hole's
+                # length). The step then integrates the interval's mean of the two.
+                held = rec.hole_variance(missing, nom, True, w, f)
+                means = rec.hole_variance(missing, nom, False, w, f)
+                wm, fm = rec.mean_rate_force(1.0)
+                hole = list(held)
+                if means[0] < held[0]:
+                    w, hole[0], dR = (wm * missing + w * nom) / dt, means[0], None
+                if means[1] < held[1]:
+                    f, hole[1] = (fm * missing + f * nom) / dt, means[1]
+                hole = tuple(hole)
+            if gap > 0.0:
+                bridge = rec.mean_rate_force(1.0)
             self.events["missing_samples"] += max(1, int(round(missing / nom)))
         self.t_last = t
         self.samples_used += 1
-        self._recent.push(dt, w, f)
+        self._recent.push(dt, w_in, f_in)
         fl = self.filter
         before = (fl.updates, fl.stage, id(fl))
-        fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None, hole)
+        fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None, hole, bridge)
         if (fl.updates, fl.stage, id(fl)) != before or hole != (0.0, 0.0):
             # the flag is re-evaluated where the covariance jumps (an update, the backtrack,
             # a hole); between updates it only grows by the process noise (the fast path
@@ -1591,21 +1628,36 @@ def _last(dt, end: int) -> float:
     return float(dt) if np.ndim(dt) == 0 else float(dt[end - 1])
 
 
+def _bridged(dt, w, f, gap, bridge):
+    """dt, w, f with a sample of the bridging means (rate, specific force) and the gap's
+    length put before each sample that follows a gap (the buffer as the filter ran it)."""
+    k = np.flatnonzero(gap > 0.0)
+    if not len(k):
+        return dt, w, f
+    n = w.shape[1]
+    dt = np.insert(dt, k, gap[k])
+    w = np.insert(w, k, np.broadcast_to(bridge[k, None, :3], (len(k), n, 3)), axis=0)
+    f = np.insert(f, k, np.broadcast_to(bridge[k, None, 3:], (len(k), n, 3)), axis=0)
+    return dt, w, f
+
+
 class _SampleBuffer:
-    """Growable store of accepted samples for the backtrack: dt, gap and the hole variances
-    (attitude, velocity) (M,), w, f (M, N, 3)."""
+    """Growable store of accepted samples for the backtrack: dt, gap, the hole variances
+    (attitude, velocity) (M,) and a gap's bridging rate and specific force (M, 6), w, f
+    (M, N, 3)."""
 
     def __init__(self, n: int):
-        self._t = np.empty((1024, 4))
+        self._t = np.empty((1024, 10))
         self._wf = np.empty((1024, n, 6))
         self._n = 0
         self._blocks = None            # (k, block means) of force_means
 
-    def append(self, dt, w, f, gap, hole=(0.0, 0.0)):
+    def append(self, dt, w, f, gap, hole=(0.0, 0.0), bridge=None):
         if self._n == len(self._t):
             self._t = np.concatenate([self._t, np.empty_like(self._t)])
             self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
-        self._t[self._n] = (dt, gap, hole[0], hole[1])
+        self._t[self._n, :4] = (dt, gap, hole[0], hole[1])
+        self._t[self._n, 4:] = 0.0 if bridge is None else np.concatenate(bridge)
         self._wf[self._n, :, :3] = w
         self._wf[self._n, :, 3:] = f
         self._n += 1
@@ -1635,10 +1687,10 @@ class _SampleBuffer:
         return np.array(got) if got else np.zeros((0, self._wf.shape[1], 3))
 
     def arrays(self):
-        """dt, w, f, gap, hole (M, 2)."""
+        """dt, w, f, gap, hole (M, 2), bridge (M, 6): rate, specific force."""
         t = self._t[: self._n]
         wf = self._wf[: self._n]
-        return t[:, 0], wf[..., :3], wf[..., 3:], t[:, 1], t[:, 2:]
+        return t[:, 0], wf[..., :3], wf[..., 3:], t[:, 1], t[:, 2:4], t[:, 4:]
 
 
 class _Recent:
@@ -1702,6 +1754,15 @@ class _Recent:
             return a[i - m:i]
         return np.concatenate((a[self.SIZE - (m - i):], a[:i]))
 
+    def mean_rate_force(self, seconds: float = 1.0):
+        """(mean rate, mean specific force) over the last ``seconds`` (None before any
+        sample)."""
+        rows = self.last(seconds)
+        if not len(rows):
+            return None
+        m = rows[:, 1:7].mean(axis=0)
+        return m[:3], m[3:]
+
     def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
         """Mean specific force over the last ``seconds`` (None before any sample)."""
         rows = self.last(seconds)
@@ -1709,38 +1770,59 @@ class _Recent:
             return None
         return rows[:, 4:7].mean(axis=0)
 
-    def hole_variance(self, hole: float, nom: float, held: bool) -> tuple[float, float]:
-        """(attitude rad^2, velocity (m/s)^2) per axis: what the motion seen in the last
-        WINDOW seconds could have done in ``hole`` seconds without samples (bounds, taken
-        as one sigma; the largest axis counts for all three, the body axes not being the
-        ENU ones).
+    def hole_variance(self, hole: float, nom: float, held: bool, w_next, f_next
+                      ) -> tuple[float, float]:
+        """(attitude rad^2, velocity (m/s)^2) per axis: the error the bridge of a hole of
+        ``hole`` seconds makes, measured on the motion of the last WINDOW seconds (the largest
+        axis counts for all three, the body axes not being the ENU ones).
 
-        - ``held``: the next sample's rate and specific force stand in for the missing
-          ones. The error of that hold grows with the distance to the sample: with ``delta``
-          the largest change between consecutive samples, at most
-          ``delta nom j (j + 1) / 2`` for j missing samples.
-        - bridged as static, or beyond that: the largest deviation of the rate (specific
-          force) from its mean bounds the change (peak x h), and the range of its integral
-          (angle, velocity wander) bounds it for a long hole: a bounded sway cannot move
-          further than its own range, grown with the hole's length beyond the window for a
-          wander that is not stationary.
+        The bridge is replayed at every position of the window, and the RMS of its error
+        there, times sqrt(2) (a tone's peak over its RMS), is one sigma:
+
+        - ``held`` (m = hole / nom missing samples): the next sample's rate and specific
+          force stand in for the missing ones, so the error is
+          ``nom sum_i (x_next - x_i)`` over the m samples it replaces. At the hole itself
+          the change from the last sample to the next one is seen: a ramp between them
+          makes ``|x_next - x_last| nom m / 2``, taken when larger (a shove in the hole).
+        - bridged with the recent means: the rate's (specific force's) deviation from its
+          mean over the window, integrated over m samples; a hole longer than the window is
+          bounded by the range of that integral (a bounded sway cannot move further than its
+          own range), grown with the hole's length beyond the window for a wander that is
+          not stationary. At the hole itself, the mean of the samples on either side less
+          the last second's mean, over the hole, is taken when larger.
+
+        Noise counts as motion here (the bridge's error against the complete data), which
+        errs on the safe side: the truth has no sensor noise in it.
         """
         rows = self.last(self.WINDOW)
-        if len(rows) < 2:
+        n = len(rows)
+        if n < 3:
             return 0.0, 0.0
-        dt = rows[:, :1]
-        T = float(dt.sum())
-        j = hole / nom
+        T = float(rows[:, 0].sum())
+        m = max(1, int(round(hole / nom)))
         out = []
-        for x in (rows[:, 1:4], rows[:, 4:7]):
-            d = x - (x * dt).sum(0) / T
-            peak = float(np.abs(d).max())
-            wander = np.cumsum(d * dt, axis=0)
-            spread = float((wander.max(0) - wander.min(0)).max())
-            bound = min(peak * hole, spread * math.sqrt(1.0 + hole / T))
-            if held:
-                delta = float(np.abs(np.diff(x, axis=0)).max())
-                bound = min(bound, delta * nom * j * (j + 1) / 2.0)
+        for x, nxt in ((rows[:, 1:4], w_next), (rows[:, 4:7], f_next)):
+            if held and m + 1 < n:
+                S = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
+                # at position k the held sample is x[k+m+1], the replaced ones x[k+1..k+m]
+                e = nom * (m * x[m + 1:] - (S[m + 1:n] - S[1:n - m]))
+                rms = float(np.sqrt(np.mean(e * e, axis=0)).max())
+                ramp = float(np.abs(np.asarray(nxt) - x[-1]).max()) * nom * m / 2.0
+                bound = max(math.sqrt(2.0) * rms, ramp)
+            else:
+                d = x - (x * rows[:, :1]).sum(0) / T
+                wander = np.cumsum(d * rows[:, :1], axis=0)
+                spread = float((wander.max(0) - wander.min(0)).max())
+                bound = spread * math.sqrt(1.0 + hole / T)
+                if m < n:
+                    Sd = np.concatenate((np.zeros((1, 3)), wander))
+                    e = Sd[m:] - Sd[:-m]
+                    rms = float(np.sqrt(np.mean(e * e, axis=0)).max())
+                    bound = min(bound, math.sqrt(2.0) * rms)
+                # at the hole itself: the samples on either side of it away from the last
+                # second's mean (the bridge) say the missing ones were too (a sway's peak)
+                edge = 0.5 * (np.asarray(nxt) + x[-1]) - x[-min(n, int(round(1.0 / nom))):].mean(0)
+                bound = max(bound, float(np.abs(edge).max()) * nom * m)
             out.append(bound ** 2)
         return out[0], out[1]
 
