@@ -1,6 +1,6 @@
 # Build and test entry points for sins_align. Everything runs with the venv's python.
 #   make setup   create .venv if missing, install pinned requirements and the package (-e)
-#   make test    run the test suite
+#   make test    lint (ruff, zero findings) and run the test suite
 #   make demo    run the demo
 #   make bench   run every test/benchmarks/bench_*.py script (they print figures)
 #   make clean   remove build/test by-products (never the venv)
@@ -35,10 +35,11 @@ $(STAMP): $(REQ) setup.py setup.cfg | $(PY)
 	touch $@
 
 test: $(STAMP)
+	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q test
 
 demo: $(STAMP)
-	$(PY) -m sins_align.ros_demo
+	$(PY) -m sins_align.ros.demo
 
 bench: $(STAMP)
 	@set -e; shopt -s nullglob; scripts=(test/benchmarks/bench_*.py); \

@@ -12,13 +12,13 @@ package_name = 'sins_align'
 # import_imu, montecarlo). test/test_package_layout.py reads this list with ast, so keep it
 # a plain list of string literals.
 ENTRY_POINTS = [
-    'demo = sins_align.ros_demo:main',
-    'align_node = sins_align.align_node:main',
-    'imu_sim_node = sins_align.imu_sim_node:main',
-    'replay = sins_align.replay:main',
-    'simulate = sins_align.simulate:main',
-    'import_imu = sins_align.import_imu:main',
-    'montecarlo = sins_align.montecarlo:main',
+    'demo = sins_align.ros.demo:main',
+    'align_node = sins_align.ros.align_node:main',
+    'imu_sim_node = sins_align.ros.imu_sim_node:main',
+    'replay = sins_align.tools.replay:main',
+    'simulate = sins_align.tools.simulate:main',
+    'import_imu = sins_align.tools.import_imu:main',
+    'montecarlo = sins_align.tools.montecarlo:main',
 ]
 
 

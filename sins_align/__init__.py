@@ -10,13 +10,16 @@ initial attitude. The numpy core has no ROS dependency:
 >>> al.covariance                 # attitude-error covariance on E/N/U, rad^2 (bias floor included)
 >>> al.aligned, al.status, al.rejected
 
-Modules: ``estimator`` (Aligner, AlignmentFilter, AlignConfig), ``models`` (the paper's three
-error models), ``kalman``, ``rotation``, ``earth``, ``specs`` (grades, limit accuracy),
-``sim`` (IMU simulator with truth), ``psins`` (PSINS log reader). The ROS nodes and tools
-(``align_node``, ``imu_sim_node``, ``replay``, ``simulate``, ``import_imu``) sit on top.
+Packages: ``core`` (rotation, earth, specs, models, kalman, preint), ``estimators``
+(``quasi_static``: Aligner, AlignmentFilter, AlignConfig), ``io`` (bags, CDR, PSINS logs),
+``sim`` (IMU simulator with truth, disturbance matrix), ``ros`` (align_node, imu_sim_node,
+parameters, outputs, demo), ``tools`` (replay, simulate, import_imu, montecarlo), ``data``
+(the real laser-gyro log).
 """
-from .estimator import REJECT_REASONS, STATES, AlignConfig, Aligner, AlignmentFilter
-from .specs import GRADES, SensorSpecs, grade_specs, limit_covariance, limit_error, limit_std
+from sins_align.core.specs import (GRADES, SensorSpecs, grade_specs, limit_covariance,
+                                   limit_error, limit_std)
+from sins_align.estimators.quasi_static import (REJECT_REASONS, STATES, AlignConfig, Aligner,
+                                                AlignmentFilter)
 
 __all__ = ["Aligner", "AlignConfig", "AlignmentFilter", "REJECT_REASONS", "STATES", "GRADES",
            "SensorSpecs", "grade_specs", "limit_covariance", "limit_error", "limit_std"]

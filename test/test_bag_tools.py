@@ -27,16 +27,18 @@ import numpy as np
 import pytest
 
 from inertial_alignment import inertial_frame_alignment
-from sins_align import import_imu, replay, simulate
+from sins_align.tools import import_imu
+from sins_align.tools import replay
+from sins_align.tools import simulate
 from sins_align.data import LASERGYRO
-from sins_align.earth import gravity
-from sins_align.estimator import JUMP_CONFIRM, AlignConfig, Aligner
-from sins_align.imu_fields import imu_covariances, sample_stamps_ns
-from sins_align.outputs import StampClock, imu_output
-from sins_align.psins import psins_att_to_dcm, read_psins
-from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
-from sins_align.sim import simulate as sim_simulate
-from sins_align.specs import DEG, grade_specs
+from sins_align.core.earth import gravity
+from sins_align.estimators.quasi_static.aligner import JUMP_CONFIRM, AlignConfig, Aligner
+from sins_align.io.imu_fields import imu_covariances, sample_stamps_ns
+from sins_align.ros.outputs import StampClock, imu_output
+from sins_align.io.psins import psins_att_to_dcm, read_psins
+from sins_align.core.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
+from sins_align.sim.simulator import simulate as sim_simulate
+from sins_align.core.specs import DEG, grade_specs
 
 LAT = 34.0
 SIM = dict(duration=80.0, rate=100.0, rpy=(1.0, -2.0, 30.0), seed=3, grade="navigation")
@@ -286,7 +288,7 @@ def write_imu_bag(path: Path, stamps_ns, gyro, accel, frames=None, compression="
     always increasing, whatever the stamps do)."""
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
-    from sins_align.bagio import typestore
+    from sins_align.io.bagio import typestore
 
     ts = typestore()
     T = ts.types
@@ -346,7 +348,8 @@ def test_block_fed_replay_equals_per_sample_replay_with_bad_samples(work):
     """A 100 Hz bag with everything the per-sample path handles sample by sample: a looped
     start (stamps jump back 20 s: the node's restart), a NaN, a duplicate and a backward
     stamp, a 10 s forward time jump, frame_id changes, and a lasting disturbance that drops
-    the aligned flag (re-inflation) and raises it again. The summary-only replay (blocks of thousands on the
+    the aligned flag (re-inflation) and raises it again. The summary-only replay (blocks of
+    thousands on the
     estimator's fast path, MCAP read by numpy) and the per-sample replay agree: attitude to
     1e-9 rad, identical rejected counts, events, resets, time to aligned and the sample of
     every aligned-flag change; the CSV and plot rows (blocks cut at the 10 Hz ticks) are
@@ -603,7 +606,7 @@ def bad_inputs(work, sim_bag):
     """Broken bags and parameter files, built once."""
     from rosbags.rosbag2 import Writer
 
-    from sins_align.bagio import typestore
+    from sins_align.io.bagio import typestore
 
     d = work / "bad"
     d.mkdir()
@@ -711,6 +714,6 @@ def test_tools_run_as_python_modules(bad_inputs):
         p = subprocess.run([sys.executable, "-m", f"sins_align.{tool}", "--help"],
                            capture_output=True, text=True, timeout=60)
         assert p.returncode == 0 and "usage:" in p.stdout, p.stderr
-    p = subprocess.run([sys.executable, "-m", "sins_align.replay", str(bad_inputs / "nope")],
+    p = subprocess.run([sys.executable, "-m", "sins_align.tools.replay", str(bad_inputs / "nope")],
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and p.stderr.count("\n") == 1 and "does not exist" in p.stderr

@@ -1,4 +1,4 @@
-"""Bulk Imu decoding (sins_align.cdr) against rosbags' own deserializer, field by field.
+"""Bulk Imu decoding (sins_align.io.cdr) against rosbags' own deserializer, field by field.
 
 What is proved here:
 - random ROS 2 (CDR) and ROS 1 messages, frame_ids of 0..40 UTF-8 bytes (ASCII and not),
@@ -26,8 +26,10 @@ import json
 import numpy as np
 import pytest
 
-from sins_align import cdr, replay
-from sins_align.cdr import (CDR_BE, CDR_LE, ImuDecodeError, ImuLayout, decode_imu_batch,
+from sins_align.io import cdr
+
+from sins_align.tools import replay
+from sins_align.io.cdr import (CDR_BE, CDR_LE, ImuDecodeError, ImuLayout, decode_imu_batch,
                             imu_nbytes, reader_imu_layout)
 
 IMU = "sensor_msgs/msg/Imu"
@@ -377,7 +379,7 @@ def write_bag(path, items, typestore=None, truth=None):
     """rosbag2 (mcap) with /imu raw messages [(ns, raw)] and optional truth [(ns, raw)]."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from sins_align.bagio import typestore as jazzy
+    from sins_align.io.bagio import typestore as jazzy
 
     w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
     w.open()
@@ -437,8 +439,8 @@ def test_replay_feeds_the_session_what_rosbags_gives(tmp_path, ts2, monkeypatch)
     """Bulk-decoded chunks == per-message rosbags, across chunks, truth, frame ids, endianness."""
     from rosbags.highlevel import AnyReader
 
-    from sins_align.estimator import AlignConfig
-    from sins_align.sim import simulate as sim_simulate
+    from sins_align.estimators.quasi_static.aligner import AlignConfig
+    from sins_align.sim.simulator import simulate as sim_simulate
 
     monkeypatch.setattr(replay, "READ_CHUNK", 500)
     sim = sim_simulate(25.0, rate=100.0, lat_deg=34.0, rpy_deg=(1.0, -2.0, 30.0), seed=4,

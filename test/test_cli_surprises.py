@@ -19,7 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sins_align import import_imu, replay, simulate
+from sins_align.tools import import_imu
+
+from sins_align.tools import replay
+
+from sins_align.tools import simulate
 
 G = 9.80665
 
@@ -177,9 +181,9 @@ def test_sigterm_and_sighup_remove_partial_outputs_with_one_line(tool, sig, long
     """`timeout` (SIGTERM) or a closed terminal (SIGHUP) while a tool writes: one line on
     stderr, exit 128 + signal, and no output at all (no hidden .partial-PID file)."""
     signum = getattr(signal, sig)
-    argv = {"simulate": ["sins_align.simulate", "--duration", "1e6", "out"],
-            "import_imu": ["sins_align.import_imu", str(long_inputs / "long.csv"), "out"],
-            "replay": ["sins_align.replay", str(long_inputs / "long_bag"), "--latitude", "34",
+    argv = {"simulate": ["sins_align.tools.simulate", "--duration", "1e6", "out"],
+            "import_imu": ["sins_align.tools.import_imu", str(long_inputs / "long.csv"), "out"],
+            "replay": ["sins_align.tools.replay", str(long_inputs / "long_bag"), "--latitude", "34",
                        "--output", "out", "--csv", "out.csv"]}[tool]
     rc, out, err = _run_and_signal(argv, tmp_path, ".out*.partial-*", signum)
     assert rc == 128 + signum, (rc, out, err)

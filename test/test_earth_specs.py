@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from sins_align.earth import OMEGA_IE, earth_rate_enu, gravity, gravity_enu
-from sins_align.specs import (DEG, DPH, GRADES, UG, SensorSpecs, grade_specs, limit_covariance,
+from sins_align.core.earth import OMEGA_IE, earth_rate_enu, gravity, gravity_enu
+from sins_align.core.specs import (DEG, DPH, GRADES, UG, SensorSpecs, grade_specs, limit_covariance,
                               limit_error, limit_std)
 
 

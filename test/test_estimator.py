@@ -8,11 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from sins_align.estimator import JUMP_CONFIRM, REJECT_REASONS, Aligner, AlignConfig, AlignmentFilter
-from sins_align.kalman import nis
-from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm, so3_log
-from sins_align.sim import SwayProfile, simulate
-from sins_align.specs import DEG, DPH, UG, limit_error
+from sins_align.estimators.quasi_static.aligner import (JUMP_CONFIRM, REJECT_REASONS, Aligner,
+                                                        AlignConfig, AlignmentFilter)
+from sins_align.core.kalman import nis
+from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm,
+                                      so3_log)
+from sins_align.sim.simulator import SwayProfile, simulate
+from sins_align.core.specs import DEG, DPH, UG, limit_error
 
 PAPER_BIAS = dict(gyro_bias=np.full(3, 0.01 * DPH), accel_bias=np.full(3, 100 * UG))
 PAPER_ERR = dcm_from_rpy(np.array([89.0, 89.0, 179.0]) * DEG)

@@ -1,6 +1,6 @@
 """What sins_align publishes is trustworthy at every instant (issue "Never lie").
 
-The disturbance matrix of :mod:`sins_align.honesty` (simulated truth, the Aligner fed block by
+The disturbance matrix of :mod:`sins_align.sim.honesty` (simulated truth, the Aligner fed block by
 block as the node is, the published std read after every block) checked against the
 invariants: |error| <= 3 sigma in >= 99 % of the published states on every observable axis,
 never above 4 sigma + 0.01 deg, and ``aligned`` never true while an axis is beyond 3 sigma.
@@ -14,11 +14,11 @@ import math
 import numpy as np
 import pytest
 
-from sins_align.estimator import AlignConfig, Aligner, AlignmentFilter
-from sins_align.honesty import CASES, run_case
-from sins_align.rotation import dcm_from_quat, dcm_from_rpy, rpy_from_dcm, so3_log
-from sins_align.sim import simulate
-from sins_align.specs import DEG
+from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner, AlignmentFilter
+from sins_align.sim.honesty import CASES, run_case
+from sins_align.core.rotation import dcm_from_quat, dcm_from_rpy, rpy_from_dcm, so3_log
+from sins_align.sim.simulator import simulate
+from sins_align.core.specs import DEG
 
 HONEST_CASES = [
     "static", "ang_x_1Hz_1deg", "ang_y_0.1Hz_5deg", "ang_z_10Hz_0.1deg",

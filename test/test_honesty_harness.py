@@ -1,4 +1,4 @@
-"""Tests of the honesty harness itself (sins_align.honesty): its error convention, its truth
+"""Tests of the honesty harness itself (sins_align.sim.honesty): its error convention, its truth
 bookkeeping under stream faults, and that its metrics do catch a dishonest covariance.
 
 These tests do not claim that the estimator is honest across the disturbance matrix."""
@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sins_align.estimator import Aligner
-from sins_align.honesty import (CASES, T0, Case, _faults_abs, check_expectations, run_case,
+from sins_align.estimators.quasi_static.aligner import Aligner
+from sins_align.sim.honesty import (CASES, T0, Case, _faults_abs, check_expectations, run_case,
                                 select_cases)
-from sins_align.rotation import dcm_from_rpy, so3_exp, so3_log
-from sins_align.sim import corrupt, relevel, simulate, with_events
-from sins_align.specs import DEG
+from sins_align.core.rotation import dcm_from_rpy, so3_exp, so3_log
+from sins_align.sim.simulator import corrupt, relevel, simulate, with_events
+from sins_align.core.specs import DEG
 
 RPY = (1.0, -0.5, 30.0)
 
@@ -165,7 +165,7 @@ def test_tilt_heading_split_and_unobservable_heading():
     """C_true = Rz(psi) exp(tau) C_est is split back into (tau_E, tau_N, psi) exactly, even for
     a 140 deg heading error where so3_log's E/N components are not the tilt; with heading
     observable the harness error is so3_log itself."""
-    from sins_align.honesty import attitude_error_enu, tilt_heading_error
+    from sins_align.sim.honesty import attitude_error_enu, tilt_heading_error
     C = dcm_from_rpy(np.radians([10.0, 20.0, 30.0]))
     tau, psi = np.radians([0.3, -0.2, 0.0]), np.radians(140.0)
     Ct = so3_exp(np.array([0.0, 0.0, psi])) @ so3_exp(tau) @ C

@@ -1,15 +1,16 @@
-"""Inertial-frame alignment (sins_align.inertial): closed forms, accuracy and honesty in sway,
+"""Inertial-frame alignment (sins_align.estimators.quasi_static.inertial): closed forms, accuracy
+and honesty in sway,
 and its use as the fine pass's start when the coarse pass was thrown off."""
 import numpy as np
 import pytest
 
-from sins_align.earth import earth_rate_enu, gravity_enu
-from sins_align.estimator import AlignConfig, Aligner
-from sins_align.honesty import CASES, LATITUDE_DEG, RATE_HZ, T0, attitude_error_enu
-from sins_align.inertial import gravity_velocity_n0, inertial_alignment
-from sins_align.rotation import so3_exp
-from sins_align.sim import simulate
-from sins_align.specs import DEG, grade_specs, limit_covariance
+from sins_align.core.earth import earth_rate_enu, gravity_enu
+from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
+from sins_align.sim.honesty import CASES, LATITUDE_DEG, RATE_HZ, T0, attitude_error_enu
+from sins_align.estimators.quasi_static.inertial import gravity_velocity_n0, inertial_alignment
+from sins_align.core.rotation import so3_exp
+from sins_align.sim.simulator import simulate
+from sins_align.core.specs import DEG, grade_specs, limit_covariance
 
 LAT = LATITUDE_DEG * DEG
 

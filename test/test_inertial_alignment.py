@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from inertial_alignment import OMEGA_E, inertial_frame_alignment
-from sins_align.earth import gravity
-from sins_align.rotation import attitude_error
-from sins_align.sim import simulate
+from sins_align.core.earth import gravity
+from sins_align.core.rotation import attitude_error
+from sins_align.sim.simulator import simulate
 
 ZERO = np.zeros(3)
 T = 300.0

@@ -3,10 +3,10 @@ plain step-by-step recursion it replaces in the fast path's gain-schedule cache.
 import numpy as np
 import pytest
 
-from sins_align.estimator import AlignConfig, AlignmentFilter
-from sins_align import kalman
-from sins_align.kalman import affine_scan, inv3, joseph_update, riccati_steps
-from sins_align.models import averaged_measurement_matrix, measurement_matrix
+from sins_align.estimators.quasi_static.aligner import AlignConfig, AlignmentFilter
+from sins_align.core import kalman
+from sins_align.core.kalman import affine_scan, inv3, joseph_update, riccati_steps
+from sins_align.core.models import averaged_measurement_matrix, measurement_matrix
 
 
 def plain(P, Phi, Qd, H, R, n):
@@ -24,7 +24,8 @@ def alignment_case(fine: bool, r_std: float, m: int = 10, dt: float = 0.01,
     cfg = AlignConfig(latitude_deg=34.0, specs=grade)
     fl = AlignmentFilter(cfg, np.eye(3)[None])
     if fine:
-        fl._start_pass(np.eye(3)[None], True, cfg.fine_initial_std_deg, np.eye(3)[None] * r_std ** 2)
+        fl._start_pass(np.eye(3)[None], True, cfg.fine_initial_std_deg,
+                       np.eye(3)[None] * r_std ** 2)
         H = averaged_measurement_matrix(measurement_matrix("constant"), fl._Fconst, m * dt)
         R = fl.R[0]
     else:
@@ -155,7 +156,7 @@ def _rel(a, b):
 def test_discretize_exact_over_long_intervals(grade, model, dt):
     """discretize equals the composition of many short steps for 0.01 s to 3600 s (the
     former 3rd-order series was off by far more than rounding beyond a few seconds)."""
-    from sins_align.models import system_matrix
+    from sins_align.core.models import system_matrix
     fl = AlignmentFilter(AlignConfig(latitude_deg=34.0, specs=grade), np.eye(3)[None])
     f_n = np.array([0.3, -0.2, 9.79])          # a tilted specific force for 'conventional'
     F = system_matrix(model, fl.w_ie, fl.g_n, f_n, np.zeros(3))
@@ -184,7 +185,7 @@ def test_discretize_exact_over_long_intervals(grade, model, dt):
 def test_discretize_constant_model_closed_form():
     """Constant model: Phi in closed form (Earth-rate rotation and its integral) and Qd by
     Gauss-Legendre quadrature of exp(F s) Qc exp(F s)^T over [0, dt]."""
-    from sins_align.rotation import skew, so3_exp
+    from sins_align.core.rotation import so3_exp
     fl = AlignmentFilter(AlignConfig(latitude_deg=60.0, specs="tactical"), np.eye(3)[None])
     F, Qc = fl._Fconst, fl.Qc
     A, B = F[:3, :3], F[3:, :3]
@@ -223,7 +224,8 @@ def test_discretize_small_dt_equals_the_former_series():
             P3, Q3 = _series3(fl._Fconst, fl.Qc, dt)
             # equal to rounding (nav, tactical); the consumer grade, whose attitude noise now
             # holds its gyro bias, leaves the series a 4th-order term of ~2e-14
-            assert _rel(Phi, P3) < 1e-15 and _rel(Qd, Q3) < (1e-13 if grade == "consumer" else 1e-15)
+            tol = 1e-13 if grade == "consumer" else 1e-15
+            assert _rel(Phi, P3) < 1e-15 and _rel(Qd, Q3) < tol
     Phi, Qd = kalman.discretize(fl._Fconst, fl.Qc, 0.0)
     assert np.array_equal(Phi, np.eye(6)) and not Qd.any()
 

@@ -1,4 +1,4 @@
-"""The numpy MCAP reader (sins_align.bagio.TopicBlocks / McapTopicReader) against rosbags.
+"""The numpy MCAP reader (sins_align.io.bagio.TopicBlocks / McapTopicReader) against rosbags.
 
 Every case is checked the same way: the (log time, bytes) sequence of the topic read through
 ``TopicBlocks`` equals rosbags' ``reader.messages(connections)`` exactly. The files are
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sins_align import replay
-from sins_align.bagio import CliError, McapTopicReader, MessageBlock, TopicBlocks, open_reader, \
+from sins_align.tools import replay
+from sins_align.io.bagio import CliError, McapTopicReader, MessageBlock, TopicBlocks, open_reader, \
     read_messages, typestore
-from sins_align.cdr import decode_imu_array, decode_imu_batch
+from sins_align.io.cdr import decode_imu_array, decode_imu_batch
 
 IMU = "sensor_msgs/msg/Imu"
 QUAT = "geometry_msgs/msg/QuaternionStamped"
@@ -245,7 +245,7 @@ def test_directory_bag_with_two_files(tmp_path):
 
 
 def test_bags_written_by_rosbags_and_simulate(tmp_path):
-    from sins_align import simulate
+    from sins_align.tools import simulate
 
     for comp in ("zstd", "none"):
         bag = tmp_path / f"sim_{comp}"
@@ -310,7 +310,7 @@ def test_corrupt_chunk_is_rosbags_error(tmp_path, capsys):
 def test_plan_refuses_what_it_does_not_read(tmp_path):
     p = write_mcap(tmp_path / "e.mcap", [("zstd", interleaved(0, 10), b""),
                                          ("zstd", interleaved(5, 20), b"")])
-    from sins_align.bagio import McapUnusual
+    from sins_align.io.bagio import McapUnusual
     with pytest.raises(McapUnusual, match="overlap"):
         list(McapTopicReader([(p, frozenset({1}))]).blocks())
     with pytest.raises(McapUnusual, match="not an MCAP"):
@@ -357,8 +357,8 @@ def _ref(raw):
 def test_replay_summary_from_numpy_mcap_equals_rosbags_reading(tmp_path):
     """The whole replay on the fast reader and on rosbags' reader (both block-fed): the same
     summary, bit for bit."""
-    from sins_align import simulate
-    from sins_align.estimator import AlignConfig
+    from sins_align.tools import simulate
+    from sins_align.estimators.quasi_static.aligner import AlignConfig
 
     bag = tmp_path / "sim"
     assert simulate.main(["--latitude", "34", "--duration", "70", "--rate", "100",

@@ -31,11 +31,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sins_align import montecarlo as mc
-from sins_align.earth import OMEGA_IE, gravity
-from sins_align.rotation import dcm_from_rpy, rpy_from_dcm
-from sins_align.sim import simulate
-from sins_align.specs import DEG, DPH, UG, grade_specs, limit_error
+from sins_align.tools import montecarlo as mc
+from sins_align.core.earth import OMEGA_IE, gravity
+from sins_align.core.rotation import dcm_from_rpy, rpy_from_dcm
+from sins_align.sim.simulator import simulate
+from sins_align.core.specs import DEG, DPH, UG, grade_specs, limit_error
 
 PAPER_RUNS, PAPER_DURATION = 8, 150.0
 
@@ -162,7 +162,7 @@ def test_chunks_of_runs_change_nothing():
          specs=grade_specs("tactical"), grade="tactical"),
 ], ids=["static-fixed", "static-random", "car-random-fixed-biases", "ship-drawn-biases"])
 def test_simulated_chunk_is_simulate_run_by_run(kw):
-    """Run i of a chunk is sins_align.sim.simulate(seed=seed + i), bit for bit: W, F, the
+    """Run i of a chunk is sins_align.sim.simulator.simulate(seed=seed + i), bit for bit: W, F, the
     truth at every output time, the initial estimate; the limit error is its biases' limit."""
     scn = mc.Scenario(runs=7, duration=45.0, every=4.0, seed=21, **kw)
     first, count = 2, 4
@@ -195,10 +195,10 @@ def test_simulated_chunk_is_simulate_run_by_run(kw):
 # ------------------------------------------------------------------------------ --paper
 @pytest.fixture(scope="module")
 def paper(tmp_path_factory):
-    """`python -m sins_align.montecarlo --paper` with 8 runs of 150 s and every output."""
+    """`python -m sins_align.tools.montecarlo --paper` with 8 runs of 150 s and every output."""
     d = tmp_path_factory.mktemp("mc_paper")
     out = {k: d / f"paper.{k}" for k in ("json", "csv", "png")}
-    p = subprocess.run([sys.executable, "-m", "sins_align.montecarlo", "--paper",
+    p = subprocess.run([sys.executable, "-m", "sins_align.tools.montecarlo", "--paper",
                         "--runs", str(PAPER_RUNS), "--duration", str(PAPER_DURATION),
                         "--json", out["json"], "--csv", out["csv"], "--plot", out["png"]],
                        capture_output=True, text=True, timeout=300)
@@ -269,7 +269,7 @@ def test_paper_constant_model_at_the_limit_at_150s(paper):
 
 def test_paper_json_schema(paper):
     r = paper["res"]
-    assert r["tool"] == "sins_align.montecarlo" and r["schema_version"] == 1
+    assert r["tool"] == "sins_align.tools.montecarlo" and r["schema_version"] == 1
     assert r["axes"] == ["E", "N", "U"]
     s = r["scenario"]
     assert s["runs"] == PAPER_RUNS and s["duration_s"] == PAPER_DURATION
@@ -446,7 +446,7 @@ def test_entry_point_and_plot_extra_declared(repo_root):
     tree = ast.parse((repo_root / "setup.py").read_text())
     eps = next(ast.literal_eval(n.value) for n in tree.body if isinstance(n, ast.Assign)
                and getattr(n.targets[0], "id", None) == "ENTRY_POINTS")
-    assert "montecarlo = sins_align.montecarlo:main" in eps
+    assert "montecarlo = sins_align.tools.montecarlo:main" in eps
     assert "'plot': ['matplotlib" in (repo_root / "setup.py").read_text()
     reqs = (repo_root / ".ci" / "requirements.txt").read_text().split()
     assert any(r.startswith("matplotlib==") for r in reqs)

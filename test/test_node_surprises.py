@@ -23,7 +23,7 @@ from sensor_msgs.msg import Imu
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
 
 from ros_helpers import NodeProcess, Probe, wait_until
-from sins_align import align_node
+from sins_align.ros import align_node
 
 RUN = os.getpid()
 CONFIG = os.path.join(os.path.dirname(align_node.__file__), "config", "align.yaml")

@@ -28,12 +28,12 @@ from std_srvs.srv import Trigger
 
 from ros_helpers import (LATCHED, NodeProcess, Probe, diag_values, latest_diag, stamp_ns,
                          wait_until)
-from sins_align import align_node
-from sins_align.outputs import BACKWARD_JUMP_CONFIRM, covariance_is_valid
-from sins_align.params import PARAMS, config_from_params, load_params_yaml
-from sins_align.rotation import attitude_error, dcm_from_quat, rpy_from_dcm
-from sins_align.sim import SwayProfile, simulate
-from sins_align.specs import DEG, grade_specs, limit_std
+from sins_align.ros import align_node
+from sins_align.ros.outputs import BACKWARD_JUMP_CONFIRM, covariance_is_valid
+from sins_align.ros.params import PARAMS, config_from_params, load_params_yaml
+from sins_align.core.rotation import attitude_error, dcm_from_quat, rpy_from_dcm
+from sins_align.sim.simulator import SwayProfile, simulate
+from sins_align.core.specs import DEG, grade_specs, limit_std
 
 RATE = 50.0          # Hz, data time
 SPEED = 10.0         # data s per wall s

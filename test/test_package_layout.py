@@ -4,7 +4,8 @@ A copy of the package source is built with the venv's colcon (colcon-ros from Py
 temporary workspace (test/colcon_build.py, one build per session); the tests check the
 installed layout that ``ros2 run`` relies on (executables, config, the sample bags, the real
 data inside the package) and run every installed executable with ``--help`` (and replay on
-the installed real-data bag). A second group checks that package.xml declares an ``exec_depend`` for every ROS
+the installed real-data bag). A second group checks that package.xml declares an ``exec_depend``
+for every ROS
 package the code imports.
 """
 from __future__ import annotations
@@ -159,7 +160,7 @@ def test_real_data_installed_with_the_package(install_dir):
     src = _tree(REPO_ROOT / PKG / 'data')
     assert 'psins-lasergyro/lasergyro.imu.xz' in src and 'psins-lasergyro/LICENSE' in src
     assert _tree(_site_packages(install_dir) / PKG / 'data') == src
-    code = ('from sins_align.data import LASERGYRO; from sins_align.psins import read_psins; '
+    code = ('from sins_align.data import LASERGYRO; from sins_align.io.psins import read_psins; '
             'print(LASERGYRO); print(read_psins(LASERGYRO).n)')
     proc = subprocess.run([sys.executable, '-c', code], cwd=install_dir,
                           env=installed_env(install_dir), capture_output=True, text=True,
@@ -177,7 +178,7 @@ def test_installed_replay_runs_on_the_installed_real_bag(install_dir, tmp_path):
     runs = {'installed': ([str(install_dir / 'lib' / PKG / 'replay'),
                            str(install_dir / 'share' / PKG / 'bags' / 'lasergyro_300s')],
                           installed_env(install_dir)),
-            'source': ([sys.executable, '-m', 'sins_align.replay',
+            'source': ([sys.executable, '-m', 'sins_align.tools.replay',
                         str(REPO_ROOT / 'bags' / 'lasergyro_300s')], None)}
     res = {}
     for name, (cmd, env) in runs.items():

@@ -8,11 +8,11 @@ import lzma
 import numpy as np
 import pytest
 
-from sins_align.coarse import static_coarse_alignment
+from sins_align.estimators.quasi_static.coarse import static_coarse_alignment
 from sins_align.data import LASERGYRO as DATA
-from sins_align.earth import OMEGA_IE, earth_rate_enu, gravity_enu
-from sins_align.psins import (ARCSEC, dcm_to_psins_att, psins_att_to_dcm, read_psins)
-from sins_align.rotation import attitude_error, heading_from_dcm, so3_exp
+from sins_align.core.earth import OMEGA_IE, earth_rate_enu, gravity_enu
+from sins_align.io.psins import (ARCSEC, dcm_to_psins_att, psins_att_to_dcm, read_psins)
+from sins_align.core.rotation import attitude_error, heading_from_dcm, so3_exp
 
 DEG = np.pi / 180.0
 DPH = DEG / 3600.0

@@ -14,11 +14,11 @@ import pytest
 
 from inertial_alignment import inertial_frame_alignment
 from sins_align.data import LASERGYRO
-from sins_align.earth import gravity
-from sins_align.estimator import Aligner, AlignConfig
-from sins_align.psins import psins_att_to_dcm, read_psins
-from sins_align.rotation import attitude_error, dcm_from_rpy, rpy_from_dcm
-from sins_align.specs import DEG
+from sins_align.core.earth import gravity
+from sins_align.estimators.quasi_static.aligner import Aligner, AlignConfig
+from sins_align.io.psins import psins_att_to_dcm, read_psins
+from sins_align.core.rotation import attitude_error, dcm_from_rpy, rpy_from_dcm
+from sins_align.core.specs import DEG
 
 
 @pytest.fixture(scope="module")

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from sins_align.data import LASERGYRO
-from sins_align.earth import earth_rate_enu
-from sins_align.estimator import Aligner, AlignConfig
-from sins_align.psins import psins_att_to_dcm, read_psins
-from sins_align.rotation import attitude_error, rpy_from_dcm, so3_exp
-from sins_align.specs import DEG
+from sins_align.core.earth import earth_rate_enu
+from sins_align.estimators.quasi_static.aligner import Aligner, AlignConfig
+from sins_align.io.psins import psins_att_to_dcm, read_psins
+from sins_align.core.rotation import attitude_error, rpy_from_dcm, so3_exp
+from sins_align.core.specs import DEG
 
 BLOCK = 100          # samples per update call: 1 s at 100 Hz
 

@@ -18,7 +18,8 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import Bool
 
 from ros_helpers import LATCHED, NodeProcess, Probe, stamp_ns, wait_until
-from sins_align import replay, simulate
+from sins_align.tools import replay
+from sins_align.tools import simulate
 
 NS = "/rv"
 RATE = 50.0

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from sins_align import rotation as r
-from sins_align.specs import DEG
+from sins_align.core import rotation as r
+from sins_align.core.specs import DEG
 
 
 def random_dcms(n, seed=0):

@@ -1,16 +1,17 @@
-"""Tests for the IMU simulator (sins_align.sim): exactness, statistics, determinism, streaming,
+"""Tests for the IMU simulator (sins_align.sim.simulator): exactness, statistics, determinism,
+streaming,
 and the batch of runs (simulate_runs) equal to simulate() run by run."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sins_align.earth import OMEGA_IE, earth_rate_enu, gravity, gravity_enu
-from sins_align.rotation import dcm_from_quat, dcm_from_rpy, so3_exp, so3_log
-from sins_align import sim as sim_module
-from sins_align.sim import (_STREAMS, SWAY_PRESETS, ImuSimulator, SimResult, SwayProfile,
+from sins_align.core.earth import OMEGA_IE, earth_rate_enu, gravity, gravity_enu
+from sins_align.core.rotation import dcm_from_quat, dcm_from_rpy, so3_exp, so3_log
+from sins_align.sim import simulator as sim_module
+from sins_align.sim.simulator import (_STREAMS, SWAY_PRESETS, ImuSimulator, SimResult, SwayProfile,
                             _ar1_scan, _stream, simulate, simulate_runs, sway_profile)
-from sins_align.specs import DEG, grade_specs
+from sins_align.core.specs import DEG, grade_specs
 
 RPY = (30.0, -50.0, 120.0)      # a deliberately non-trivial mean attitude, deg
 ZERO = np.zeros(3)

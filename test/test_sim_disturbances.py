@@ -1,4 +1,4 @@
-"""Tests for the simulator's disturbances (sins_align.sim): tones and their combination,
+"""Tests for the simulator's disturbances (sins_align.sim.simulator): tones and their combination,
 transient events (shove, door slam, re-level), the new ship presets, and stream faults
 (corrupt). The kinematics must stay exact: the samples re-integrate to the truth."""
 from __future__ import annotations
@@ -6,11 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sins_align.earth import earth_rate_enu, gravity_enu
-from sins_align.rotation import dcm_from_rpy, so3_exp, so3_log
-from sins_align.sim import (SWAY_PRESETS, Event, SimResult, SwayProfile, Tone, combine, corrupt,
-                            door_slam, relevel, shove, simulate, simulate_runs, tone, with_events)
-from sins_align.specs import DEG
+from sins_align.core.earth import earth_rate_enu, gravity_enu
+from sins_align.core.rotation import dcm_from_rpy, so3_exp, so3_log
+from sins_align.sim.simulator import (SWAY_PRESETS, Event, SimResult, SwayProfile, Tone, combine,
+                                      corrupt, door_slam, relevel, shove, simulate, simulate_runs,
+                                      tone, with_events)
+from sins_align.core.specs import DEG
 
 RPY = (30.0, -50.0, 120.0)
 ZERO = np.zeros(3)

@@ -49,7 +49,7 @@ def test_fresh_clone_reads_the_real_log(clone):
     README and LICENSE, and read_psins gives all 184,718 samples of it."""
     code = ("import json, sins_align\n"
             "from sins_align.data import LASERGYRO\n"
-            "from sins_align.psins import read_psins\n"
+            "from sins_align.io.psins import read_psins\n"
             "log = read_psins(LASERGYRO)\n"
             "print(json.dumps({'pkg': sins_align.__file__, 'data': str(LASERGYRO), 'n': log.n,"
             " 'lat': log.lat_rad, 'files': sorted(p.name for p in LASERGYRO.parent.iterdir())}))")

@@ -5,7 +5,7 @@ the source tree, an editable install and an installed package (colcon or pip).
 
 ``LASERGYRO``: the PSINS ring-laser-gyro log of a parked car, 34.246° N, 100 Hz, 1847 s
 (``psins-lasergyro/README.md``; BSD 2-clause, ``psins-lasergyro/LICENSE``), xz-compressed;
-``sins_align.psins.read_psins`` reads it as it is.
+``sins_align.io.psins.read_psins`` reads it as it is.
 """
 from __future__ import annotations
 

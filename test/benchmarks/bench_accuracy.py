@@ -15,11 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 from sins_align.data import LASERGYRO
-from sins_align.estimator import Aligner, AlignConfig, AlignmentFilter
-from sins_align.psins import psins_att_to_dcm, read_psins
-from sins_align.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
-from sins_align.sim import simulate
-from sins_align.specs import DEG, DPH, UG, limit_error
+from sins_align.estimators.quasi_static.aligner import Aligner, AlignConfig, AlignmentFilter
+from sins_align.io.psins import psins_att_to_dcm, read_psins
+from sins_align.core.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
+from sins_align.sim.simulator import simulate
+from sins_align.core.specs import DEG, DPH, UG, limit_error
 
 ERR = dcm_from_rpy(np.array([89.0, 89.0, 179.0]) * DEG)
 

@@ -19,11 +19,11 @@ import time
 
 import numpy as np
 
-from sins_align import estimator
-from sins_align.estimator import Aligner, AlignConfig, AlignmentFilter
-from sins_align.rotation import dcm_from_rpy
-from sins_align.sim import simulate
-from sins_align.specs import DEG
+from sins_align.estimators.quasi_static import aligner as estimator
+from sins_align.estimators.quasi_static.aligner import Aligner, AlignConfig, AlignmentFilter
+from sins_align.core.rotation import dcm_from_rpy
+from sins_align.sim.simulator import simulate
+from sins_align.core.specs import DEG
 
 TARGET_CORE = 1_000_000      # issue 5: samples/s, constant model
 ERR = dcm_from_rpy(np.array([89.0, 89.0, 179.0]) * DEG)

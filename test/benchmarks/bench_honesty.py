@@ -3,7 +3,7 @@
 Usage: python test/benchmarks/bench_honesty.py [--seeds N] [--cases PATTERN[,PATTERN...]]
                                                 [--json OUT] [--jobs J]
 
-Runs every case of :data:`sins_align.honesty.CASES` (or those whose name matches a
+Runs every case of :data:`sins_align.sim.honesty.CASES` (or those whose name matches a
 shell-style PATTERN) for seeds 0..N-1 and prints, per case (worst or total over the seeds):
 
 - max |err|/sigma per axis E N U (max over seeds; '-' where the axis is unobservable),
@@ -32,7 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from sins_align.honesty import run_case, select_cases  # noqa: E402
+from sins_align.sim.honesty import run_case, select_cases  # noqa: E402
 
 _SHORT = {"specific_force_out_of_range": "sf_range", "rates_look_like_deg_per_s": "deg_s",
           "stamp_backwards": "backwards", "duplicate_stamp": "dup", "time_jump": "jump",
@@ -73,7 +73,8 @@ def _row(name: str, rs: list[dict]) -> str:
             rej[k] = rej.get(k, 0) + v
     rej_s = " ".join(f"{_SHORT.get(k, k)}:{v}" for k, v in sorted(rej.items())) or "-"
     return (f"{name:<27} {_fmt_ratio(ratio[0])} {_fmt_ratio(ratio[1])} {_fmt_ratio(ratio[2])}"
-            f" {o3:5.1f} {v4:5d} {aw:5d} {tal_s:>5} {pal:5.1f} {head:>16} {stale:6.1f} {exp:3d}  {rej_s}")
+            f" {o3:5.1f} {v4:5d} {aw:5d} {tal_s:>5} {pal:5.1f} {head:>16} {stale:6.1f}"
+            f" {exp:3d}  {rej_s}")
 
 
 def main(argv=None) -> int:

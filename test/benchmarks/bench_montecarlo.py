@@ -2,7 +2,7 @@
 
 Usage: python test/benchmarks/bench_montecarlo.py [--repeat 3]
 
-1. ``sins_align.montecarlo`` end to end, constant model, 100 Hz, static navigation grade:
+1. ``sins_align.tools.montecarlo`` end to end, constant model, 100 Hz, static navigation grade:
    sample-runs per second of the filter alone (IMU samples x runs / filter CPU time) and of
    the whole tool (simulation included), for the three pipelines:
    - ``no-backtrack``: the coarse pass alone, an update every 0.1 s, one gain schedule
@@ -16,7 +16,8 @@ Usage: python test/benchmarks/bench_montecarlo.py [--repeat 3]
 
 Times are CPU seconds of this process (time.process_time), best of --repeat, so that
 another process on the second core disturbs them less; the tool's "filter" column is the
-filter time the tool itself reports (wall clock), also the best of --repeat. The issue's target is 20,000,000
+filter time the tool itself reports (wall clock), also the best of --repeat. The issue's target is
+20,000,000
 sample-runs/s for the constant model; the figures printed are what this machine does.
 """
 from __future__ import annotations
@@ -27,9 +28,9 @@ import time
 
 import numpy as np
 
-from sins_align.estimator import AlignConfig, AlignmentFilter
-from sins_align.montecarlo import Scenario, make_curves, run_montecarlo
-from sins_align.sim import simulate
+from sins_align.estimators.quasi_static.aligner import AlignConfig, AlignmentFilter
+from sins_align.tools.montecarlo import Scenario, make_curves, run_montecarlo
+from sins_align.sim.simulator import simulate
 
 TARGET = 20e6
 

@@ -2,7 +2,7 @@
 """How fast can align_node go? A script that prints figures (not a test).
 
 For each IMU rate (100, 400, 1000, 2000 Hz) a publisher process sends ~10 s of simulated
-sensor_msgs/Imu at that rate (wall clock) to a fresh ``python -m sins_align.align_node``;
+sensor_msgs/Imu at that rate (wall clock) to a fresh ``python -m sins_align.ros.align_node``;
 this script counts the ``imu/data`` messages that come back and reads the node's CPU time
 from ``/proc/<pid>/stat`` (utime + stime). A rate is *sustained* when every input came back.
 Columns: ``used`` the samples the node's diagnostics count as used, plus the first one (the
@@ -58,7 +58,7 @@ def publisher(rate: float, duration: float) -> None:
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Imu
 
-    from sins_align.sim import simulate
+    from sins_align.sim.simulator import simulate
 
     sim = simulate(duration, rate=rate, seed=1)
     t0 = 1_700_000_000
@@ -134,7 +134,7 @@ def trial(rate: float, duration: float, backtrack: float, env: dict) -> dict:
             ex.spin_once(timeout_sec=0.01)
 
     node = subprocess.Popen(
-        [sys.executable, "-m", "sins_align.align_node", "--ros-args", "-r", f"__ns:={NS}",
+        [sys.executable, "-m", "sins_align.ros.align_node", "--ros-args", "-r", f"__ns:={NS}",
          "-r", "__node:=bench_align", "-p", "latitude:=34.0", "-p", f"rate:={rate}",
          "-p", f"backtrack_time:={backtrack}"],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

@@ -4,9 +4,9 @@ Script, not a test: prints figures, never fails on a slow machine. Run::
 
     .venv/bin/python test/benchmarks/bench_replay.py [--duration 600] [--repeat 5]
 
-It simulates a static navigation-grade 100 Hz bag (``sins_align.simulate``, mcap + zstd, the
+It simulates a static navigation-grade 100 Hz bag (``sins_align.tools.simulate``, mcap + zstd, the
 Imu topic interleaved with the truth topic) into a temporary directory, then times
-``sins_align.replay`` in this process (the CLI's ``main``, so argument handling, bag
+``sins_align.tools.replay`` in this process (the CLI's ``main``, so argument handling, bag
 reading, decoding, the estimator and the JSON are all in), best of ``--repeat`` runs, and
 prints each figure beside the target of 500,000 Imu messages/s:
 
@@ -14,7 +14,8 @@ prints each figure beside the target of 500,000 Imu messages/s:
   estimator fed blocks of thousands of samples), cold (as a fresh process: the gain
   schedule cache cleared) and warm, cold on the same data in an uncompressed bag (what
   ``ros2 bag record`` writes by default; the result must be identical), and the same
-  forced onto the per-sample path (before); with ``--csv`` (block path cut at the 10 Hz rows) and ``--output`` (the node's
+  forced onto the per-sample path (before); with ``--csv`` (block path cut at the 10 Hz rows) and
+  ``--output`` (the node's
   per-sample path) for reference;
 - decode only, bag on disk -> (sec, nanosec, gyro, accel) arrays of the Imu topic: rosbags'
   reader + its deserializer (before), rosbags' reader + the bulk decoder, and the numpy MCAP
@@ -44,11 +45,15 @@ from pathlib import Path
 
 import numpy as np
 
-from sins_align import estimator, replay, simulate
-from sins_align.bagio import TopicBlocks, deserialize, open_reader, read_message_chunks
-from sins_align.cdr import decode_imu_array, decode_imu_batch, reader_imu_layout
-from sins_align.estimator import AlignConfig, Aligner
-from sins_align.outputs import StampClock
+from sins_align.estimators.quasi_static import aligner as estimator
+
+from sins_align.tools import replay
+
+from sins_align.tools import simulate
+from sins_align.io.bagio import TopicBlocks, deserialize, open_reader, read_message_chunks
+from sins_align.io.cdr import decode_imu_array, decode_imu_batch, reader_imu_layout
+from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
+from sins_align.ros.outputs import StampClock
 
 IMU = "sensor_msgs/msg/Imu"
 TOPIC = "/imu/data_raw"

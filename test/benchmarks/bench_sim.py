@@ -4,9 +4,9 @@ Usage: python test/benchmarks/bench_sim.py [--repeat K]
 
 Sample-runs per second (IMU samples x runs / wall time, 100 Hz, navigation grade) of
 
-- the per-run loop: ``sins_align.sim.simulate`` once per run (seed = i), stacked into W, F
+- the per-run loop: ``sins_align.sim.simulator.simulate`` once per run (seed = i), stacked into W, F
   (T, n, 3) -- what ``montecarlo.simulate_chunk`` did before the batch;
-- the batch: ``sins_align.sim.simulate_runs`` (what ``simulate_chunk`` does now);
+- the batch: ``sins_align.sim.simulator.simulate_runs`` (what ``simulate_chunk`` does now);
 
 on a static base with the truth shared by all runs (fixed attitude) or one per run (random
 attitude, drawn biases), and with the car sway, for 1000 runs x 10 s and 100 runs x 60 s. Also
@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from sins_align.sim import simulate, simulate_runs
+from sins_align.sim.simulator import simulate, simulate_runs
 
 
 def best(f, repeat: int):

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .estimator import AlignConfig
-from .models import MODELS
-from .specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
+from sins_align.estimators.quasi_static.aligner import AlignConfig
+from sins_align.core.models import MODELS
+from sins_align.core.specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
 
 #: The node's name: its executable's (``ros2 param list /align_node``). The shipped
 #: config/align.yaml is keyed ``/**`` so that it applies to a renamed node too.
@@ -46,8 +46,10 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("grade", "navigation", "Sensor grade preset for the specs below: navigation, "
               "tactical or consumer.", choices=tuple(GRADES)),
     ParamSpec("gyro_bias", -1.0, "Gyro bias 1-sigma, deg/h (-1 = from grade).", -1.0, 1e6),
-    ParamSpec("gyro_arw", -1.0, "Gyro angle random walk, deg/sqrt(h) (-1 = from grade).", -1.0, 1e6),
-    ParamSpec("accel_bias", -1.0, "Accelerometer bias 1-sigma, micro-g (-1 = from grade).", -1.0, 1e6),
+    ParamSpec("gyro_arw", -1.0, "Gyro angle random walk, deg/sqrt(h) (-1 = from grade).",
+              -1.0, 1e6),
+    ParamSpec("accel_bias", -1.0, "Accelerometer bias 1-sigma, micro-g (-1 = from grade).",
+              -1.0, 1e6),
     ParamSpec("accel_vrw", -1.0, "Accelerometer white noise, micro-g/sqrt(Hz) (-1 = from grade).",
               -1.0, 1e6),
     ParamSpec("velocity_noise", 0.01, "Zero-velocity measurement noise of the coarse pass, m/s "
@@ -56,7 +58,8 @@ PARAMS: tuple[ParamSpec, ...] = (
               "as in the paper).", 0.0, 10.0),
     ParamSpec("backtrack", True, "Re-run the buffered data in the fine pass once a first "
               "estimate exists (False = the paper's one-pass filter)."),
-    ParamSpec("backtrack_time", 60.0, "Data time after which the fine pass starts, s.", 5.0, 3600.0),
+    ParamSpec("backtrack_time", 60.0, "Data time after which the fine pass starts, s.",
+              5.0, 3600.0),
     ParamSpec("fine_update_period", 1.0, "Shortest fine-pass update period, s (lengthened "
               "automatically for slow sway).", 0.01, 60.0),
     ParamSpec("rate", 0.0, "Nominal IMU rate, Hz (0 = estimate from the stamps).", 0.0, 100000.0),

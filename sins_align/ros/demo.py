@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .rotation import attitude_error, dcm_from_quat, heading_from_dcm, rpy_from_dcm, wrap_angle
+from sins_align.core.rotation import (attitude_error, dcm_from_quat, heading_from_dcm, rpy_from_dcm,
+                                      wrap_angle)
 
 DEG = math.pi / 180.0
 

@@ -24,7 +24,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .specs import SensorSpecs
+from sins_align.core.specs import SensorSpecs
 
 #: Default frame of the raw IMU messages (the body frame b).
 IMU_FRAME = "imu_link"
@@ -103,7 +103,8 @@ def split_stamp(ns: int) -> tuple[int, int]:
 def sample_stamps_ns(t0_s: float, rate_hz: float, first: int, n: int) -> np.ndarray:
     """Stamps of simulated samples ``first .. first + n - 1`` (0-based), int64 ns.
 
-    Sample ``k`` is stamped ``t0 + (k + 1) / rate`` (as :mod:`sins_align.sim`), computed in
+    Sample ``k`` is stamped ``t0 + (k + 1) / rate`` (as :mod:`sins_align.sim.simulator`), computed
+    in
     integer nanoseconds from ``t0`` so that epoch-sized ``t0`` keeps full resolution.
     """
     k = np.arange(first + 1, first + n + 1, dtype=np.int64)

@@ -57,9 +57,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .earth import earth_rate_enu, gravity_enu
-from .rotation import dcm_from_rpy, quat_from_dcm, skew, so3_exp, so3_log
-from .specs import SensorSpecs, grade_specs
+from sins_align.core.earth import earth_rate_enu, gravity_enu
+from sins_align.core.rotation import dcm_from_rpy, quat_from_dcm, skew, so3_exp, so3_log
+from sins_align.core.specs import SensorSpecs, grade_specs
 
 __all__ = ["SwayProfile", "SWAY_PRESETS", "sway_profile", "SimResult", "simulate",
            "ImuSimulator", "RunsResult", "simulate_runs", "Tone", "Event", "tone", "combine",
@@ -489,7 +489,8 @@ def with_events(profile: SwayProfile | str, *events: Event) -> SwayProfile:
 
 
 def sway_profile(name: str, amplitude: float = 1.0) -> SwayProfile:
-    """Preset sway profile ``name`` ('none', 'car', 'ship', 'ship_heave', 'moored_ship') with amplitudes scaled by ``amplitude``.
+    """Preset sway profile ``name`` ('none', 'car', 'ship', 'ship_heave', 'moored_ship') with
+    amplitudes scaled by ``amplitude``.
 
     Raises
     ------

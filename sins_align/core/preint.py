@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from .rotation import dcm_entries_from_quat, horner
+from sins_align.core.rotation import dcm_entries_from_quat, horner
 
 
 def _qmul(a, b):
@@ -359,7 +359,7 @@ def total_rotation(dt, w: np.ndarray) -> np.ndarray:
         if len(q[0]) % 2:                     # odd: the last one waits for the next level
             last = tuple(c[-1:] for c in q)
             q = _qmul(tuple(c[0:-1:2] for c in q), tuple(c[1::2] for c in q))
-            q = tuple(np.concatenate([c, l]) for c, l in zip(q, last))
+            q = tuple(np.concatenate([c, e]) for c, e in zip(q, last))
         else:
             q = _qmul(tuple(c[0::2] for c in q), tuple(c[1::2] for c in q))
     return np.array([float(c[0]) for c in q])

@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from .preint import start_frame_increments
+from sins_align.core.preint import start_frame_increments
 
 __all__ = ["InertialFit", "inertial_alignment"]
 
@@ -120,7 +120,7 @@ def inertial_alignment(dt: np.ndarray, w: np.ndarray, f: np.ndarray, w_ie: np.nd
     w_ie, g_n : ndarray (3,) — Earth rate and gravity in ENU.
     limit_std : ndarray (3,) rad — limit accuracy (E, N, U) of the bias specs (inf allowed).
     gyro_arw : rad/sqrt(s) ; accel_vrw : m/s/sqrt(s).
-    increments : :func:`sins_align.preint.start_frame_increments` of the same samples, when
+    increments : :func:`sins_align.core.preint.start_frame_increments` of the same samples, when
         the caller has them already.
     """
     dt = np.asarray(dt, dtype=float)

@@ -152,7 +152,8 @@ def read_psins(path: str | os.PathLike, max_samples: int | None = None) -> Psins
     Raises
     ------
     ValueError
-        An xz file that does not decompress, or a malformed file, with the file name and 1-based line number: missing or wrong header
+        An xz file that does not decompress, or a malformed file, with the file name and 1-based
+        line number: missing or wrong header
         lines (each must have 6 finite numbers; ts, g and the scale factors must be positive,
         |lat| <= 90 deg), a data line without exactly 6 fields, a non-numeric or non-finite
         value, or no data line at all.
@@ -255,7 +256,8 @@ def psins_att_to_dcm(att_rad: np.ndarray) -> np.ndarray:
 def dcm_to_psins_att(C: np.ndarray) -> np.ndarray:
     """PSINS ``m2att``: ``[pitch, roll, yaw]``, rad, from C_b^n (n = ENU).
 
-    pitch = asin(C32) in [-pi/2, pi/2] (computed as atan2), roll = atan2(-C31, C33), yaw = atan2(-C12, C22).
+    pitch = asin(C32) in [-pi/2, pi/2] (computed as atan2), roll = atan2(-C31, C33), yaw =
+    atan2(-C12, C22).
     At gimbal lock (cos(pitch) < 1e-9) roll is set to 0 and yaw = atan2(C21, C11), so
     ``psins_att_to_dcm(dcm_to_psins_att(C))`` still equals C. (PSINS switches branches already
     at |C32| > 0.999999, i.e. 0.08 deg from +-90 deg, which loses up to ~1e-3 rad there; the

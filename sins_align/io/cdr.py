@@ -258,7 +258,7 @@ def decode_imu_batch(raws: Sequence[bytes | bytearray | memoryview], layout: str
 
     Default fallback: the rosbags deserializer for ``layout``; when it fails too,
     :class:`ImuDecodeError` names the index (chained to rosbags' error). Exceptions raised
-    by a caller's ``fallback`` propagate unchanged (sins_align.replay raises its one-line
+    by a caller's ``fallback`` propagate unchanged (sins_align.tools.replay raises its one-line
     CliError naming the message's timestamp).
     """
     if layout not in LAYOUTS:

@@ -30,16 +30,17 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .earth import OMEGA_IE, earth_rate_enu, gravity_enu
-from .kalman import affine_scan, discretize, inv3, joseph_update, nis, riccati_steps
-from .inertial import inertial_alignment
-from .models import (apply_correction, averaged_measurement_matrix, bias_input_matrix,
-                     check_model, measurement_matrix, system_matrix)
-from .preint import (earth_poly, open_loop_velocity, preintegrate, scratch_array,
-                     start_frame_increments, total_rotation)
-from .rotation import (dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm, rpy_from_dcm,
-                       so3_exp, so3_exp_entries, so3_log)
-from .specs import DEG, SensorSpecs, grade_specs, limit_covariance
+from sins_align.core.earth import OMEGA_IE, earth_rate_enu, gravity_enu
+from sins_align.core.kalman import affine_scan, discretize, inv3, joseph_update, nis, riccati_steps
+from sins_align.estimators.quasi_static.inertial import inertial_alignment
+from sins_align.core.models import (apply_correction, averaged_measurement_matrix,
+                                    bias_input_matrix, check_model, measurement_matrix,
+                                    system_matrix)
+from sins_align.core.preint import (earth_poly, open_loop_velocity, preintegrate, scratch_array,
+                     start_frame_increments)
+from sins_align.core.rotation import (dcm_from_quat, dcm_from_rpy, heading_from_dcm, quat_from_dcm,
+                                      rpy_from_dcm, so3_exp, so3_exp_entries, so3_log)
+from sins_align.core.specs import DEG, SensorSpecs, grade_specs, limit_covariance
 
 #: Reasons a sample can be rejected. A rejected sample never touches the filter state.
 REJECT_REASONS = (
@@ -184,7 +185,8 @@ class AlignConfig:
             v = getattr(self, name)
             _check(len(v) == 2 and all(math.isfinite(a) and a > 0 for a in v),
                    f"{name} must be two positive angles (level, heading), got {v!r}")
-        _check(math.isfinite(self.coarse_update_period) and 0.0 <= self.coarse_update_period <= 10.0,
+        _check(math.isfinite(self.coarse_update_period)
+               and 0.0 <= self.coarse_update_period <= 10.0,
                f"coarse_update_period must be within [0, 10] s, got {self.coarse_update_period!r}")
         _check(self.rate_hz is None or (math.isfinite(self.rate_hz) and self.rate_hz > 0),
                f"rate_hz must be > 0 or None, got {self.rate_hz!r}")
@@ -265,7 +267,8 @@ class AlignmentFilter:
         self._B = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
         self.reinflations = np.zeros(self.n, dtype=int)
         self.gated_updates = np.zeros(self.n, dtype=int)
-        self.started_inertial = np.zeros(self.n, dtype=bool)   # fine pass from sins_align.inertial
+        # the fine pass started from the inertial-frame alignment (inertial.py)
+        self.started_inertial = np.zeros(self.n, dtype=bool)
 
     # ------------------------------------------------------------------ state
     def _start_pass(self, C0, fine: bool, std, R, v0=None):
@@ -348,7 +351,7 @@ class AlignmentFilter:
 
         ``dt`` is one interval for all samples, or one per sample (T,) for jittered stamps
         (each within 40 % of their mean). Between updates the mechanization is integrated in
-        closed form from vectorised sums (:mod:`sins_align.preint`) and the covariance jumps
+        closed form from vectorised sums (:mod:`sins_align.core.preint`) and the covariance jumps
         over the whole interval, so the Python work is per update, not per sample. The
         update schedule, the backtrack and every update are those of :meth:`run`; the
         results agree to rounding (test_fast_path). Models other than 'constant' (whose F
@@ -966,7 +969,8 @@ class AlignmentFilter:
         """Where the fine pass starts: attitude (N, 3, 3), initial std (N, 6), velocity (N, 3).
 
         The coarse pass's estimate carried back (``C0``) is checked against the inertial-frame
-        alignment of the same buffer (:mod:`sins_align.inertial`, immune to sway): when it
+        alignment of the same buffer (:mod:`sins_align.estimators.quasi_static.inertial`, immune to
+        sway): when it
         lies outside 3 sigma of that solution on some axis (the coarse pass was thrown off by
         sway), the fine pass starts from the inertial-frame attitude instead. The initial
         std is the configured ``fine_initial_std_deg``, widened to 3 sigma of the
@@ -1921,7 +1925,7 @@ class _UnitsMonitor:
 
     def _accumulated(self, dts, w, f, T):
         """(B, bin sums, T) after samples with window times T (not stored)."""
-        from .preint import prefix_rotations
+        from sins_align.core.preint import prefix_rotations
         q = prefix_rotations(dts[None], w[None])       # exp(w_1 dt_1) ... exp(w_k dt_k)
         Q = dcm_from_quat(np.stack([c[0] for c in q], axis=-1))
         u = np.einsum("ij,kjl,kl->ki", self.B, Q, f)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rotation import skew, so3_exp
+from sins_align.core.rotation import skew, so3_exp
 
 MODELS = ("constant", "conventional", "se3")
 

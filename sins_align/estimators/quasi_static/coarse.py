@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .earth import earth_rate_enu
+from sins_align.core.earth import earth_rate_enu
 
 _MIN_SIN = 1e-9
 

@@ -32,7 +32,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
-from .imu_fields import ImuCovariances, ImuFields, TruthFields
+from sins_align.io.imu_fields import ImuCovariances, ImuFields, TruthFields
 
 #: rosbag2 storage plugins and the --compression values each one supports with rosbags:
 #: mcap compresses its chunks (zstd, what ros2 bag and Foxglove use); sqlite3 compresses
@@ -368,7 +368,7 @@ class Messages:
             linear_acceleration_covariance=self._cov(accel_cov))
 
     def raw_imu(self, f: ImuFields):
-        """``sensor_msgs/Imu`` of a raw sample (see :mod:`sins_align.imu_fields`)."""
+        """``sensor_msgs/Imu`` of a raw sample (see :mod:`sins_align.io.imu_fields`)."""
         c: ImuCovariances = f.covariances
         return self.imu(self.header(f.sec, f.nanosec, f.frame_id), f.orientation_xyzw,
                         c.orientation, f.angular_velocity, c.angular_velocity,
@@ -451,7 +451,7 @@ def read_message_chunks(reader, connections, path, size: int = 4096
                         ) -> Iterator[list[tuple[object, int, bytes]]]:
     """:func:`read_messages` in lists of at most ``size`` items, in bag order.
 
-    For bulk decoding (:mod:`sins_align.cdr`); memory stays bounded by ``size`` messages.
+    For bulk decoding (:mod:`sins_align.io.cdr`); memory stays bounded by ``size`` messages.
     """
     if size < 1:
         raise ValueError(f"chunk size must be >= 1, got {size}")
@@ -486,7 +486,7 @@ class MessageBlock:
 
     Message ``i`` is ``buf[starts[i]:starts[i] + sizes[i]]`` (``buf``: 1-D uint8 array, e.g.
     a decompressed MCAP chunk; the messages need not be contiguous); ``log_ns`` are their
-    log times (int64 ns). Decode with :func:`sins_align.cdr.decode_imu_array`.
+    log times (int64 ns). Decode with :func:`sins_align.io.cdr.decode_imu_array`.
     """
 
     __slots__ = ("log_ns", "buf", "starts", "sizes")

@@ -1,6 +1,7 @@
 """Honesty harness: does the published covariance cover the true attitude error?
 
-Runs the :class:`~sins_align.estimator.Aligner` on simulated disturbances (the "disturbance
+Runs the :class:`~sins_align.estimators.quasi_static.Aligner` on simulated disturbances (the
+"disturbance
 matrix" :data:`CASES`) and compares, at every fed block, the true attitude error with the
 published standard deviation. numpy only, no ROS.
 
@@ -36,10 +37,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .estimator import AlignConfig, Aligner
-from .rotation import so3_exp, so3_log
-from .sim import (SwayProfile, combine, corrupt, door_slam, relevel, shove, simulate, tone,
-                  with_events)
+from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
+from sins_align.core.rotation import so3_exp, so3_log
+from sins_align.sim.simulator import (SwayProfile, combine, corrupt, door_slam, relevel, shove,
+                                      simulate, tone, with_events)
 
 __all__ = ["Case", "CASES", "run_case", "select_cases", "check_expectations",
            "attitude_error_enu", "tilt_heading_error",
@@ -70,7 +71,8 @@ class Case:
     specs : grade name of the IMU (simulated and configured alike).
     rpy_deg : mean true attitude, REP-103 deg.
     initial_rpy_deg : the Aligner's initial attitude (None = identity).
-    faults : keyword arguments of :func:`sins_align.sim.corrupt`, times in s since the start.
+    faults : keyword arguments of :func:`sins_align.sim.simulator.corrupt`, times in s since the
+    start.
     block : samples per :meth:`Aligner.update` call.
     expectations : names checked by :func:`check_expectations` ('honest', 'no_aligned_wrong',
         'aligns', 'aligns_by:<s>', 'rejects:<reason>', 'no_rejects', 'heading_within:<deg>').

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .earth import OMEGA_IE, gravity
+from sins_align.core.earth import OMEGA_IE, gravity
 
 DEG = np.pi / 180.0
 DPH = DEG / 3600.0                 # deg/h -> rad/s

@@ -1,0 +1,11 @@
+"""The estimators. Each subpackage is one estimator behind the same small interface:
+
+- ``update(stamp, gyro, accel)`` for one sample or a block (returns how many were used);
+- read-only results: ``quaternion``, ``dcm``, ``covariance`` (E/N/U, rad^2), ``std_enu_deg``,
+  ``aligned``, ``status``, ``rejected``, ``events``.
+
+The fronts (:mod:`sins_align.ros`, :mod:`sins_align.tools`, the benchmarks) use nothing else.
+
+- :mod:`~sins_align.estimators.quasi_static`: self-alignment on a still or swaying base
+  (gyrocompassing, the paper's damped mechanization and constant-matrix Kalman filter).
+"""

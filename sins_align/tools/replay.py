@@ -1,0 +1,1085 @@
+"""Replay an IMU bag through the alignment estimator, exactly as align_node would run it.
+
+Usage (stable interface)::
+
+    python -m sins_align.tools.replay BAG [--topic /imu] [--latitude DEG] [--height M]
+        [--model NAME] [--grade NAME] [--initial-rpy ROLL PITCH YAW] [--params align.yaml]
+        [--output OUT_DIR] [--csv FILE] [--plot FILE.png] [--summary-json FILE]
+        [--truth-topic TOPIC] [--force]
+
+BAG is a rosbag2 bag (directory, .mcap or .db3; sqlite3 or mcap storage) or a ROS 1 ``.bag``.
+``--topic`` may be left out when the bag holds exactly one ``sensor_msgs/Imu`` topic.
+
+Same code path as the node: parameters come from the node's YAML file (``--params``, read by
+:func:`sins_align.ros.params.load_params_yaml`; flags override it) and become an
+:class:`~sins_align.estimators.quasi_static.AlignConfig` through
+:func:`~sins_align.ros.params.config_from_params`;
+each message becomes a sample through :func:`sins_align.ros.outputs.imu_sample` and one
+:class:`~sins_align.ros.outputs.StampClock`; every published value comes from
+:mod:`sins_align.ros.outputs`. A replay therefore publishes the numbers the live node publishes.
+
+Outputs (each appears only when complete, nothing on Ctrl-C, SIGTERM or SIGHUP; an existing
+path is an error unless ``--force``, which replaces a previous output of the same kind)
+------------------------------------------------------------------------------------------
+- ``--output``: a rosbag2 bag (mcap storage, zstd chunks) with the node's topics, resolved at
+  root, stamped with data time (message time = header stamp, ns):
+
+  * ``/imu/data`` (sensor_msgs/Imu): each input message the estimator did not reject (as the
+    node, rejected samples are not republished) with orientation (C_b^n, IMU frame in ENU) and
+    its covariance (attitude error phi about E, N, U, rad^2); header copied;
+  * ``/alignment/aligned`` (std_msgs/Bool): false at the first sample, then on every change;
+  * ``/alignment/euler_deg`` (geometry_msgs/Vector3Stamped): REP-103 roll, pitch, yaw, deg,
+    at the first sample of every 0.1 s of data time (the node: a 10 Hz wall timer), with the
+    header of the latest accepted sample;
+  * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): at the first sample of every 1 s of
+    data time, stamped with it (the node: 1 Hz wall timer, wall stamp), same status values.
+
+  Also as the node: stamps far behind the last accepted one (more than ``max_gap``) three
+  times in a row restart the alignment (a looped bag).
+- ``--csv``: ``t`` (s since the first sample), ``qx, qy, qz, qw``, ``roll, pitch, yaw`` (deg,
+  REP-103), ``heading`` (deg true, clockwise from North, of the IMU x axis), ``std_e, std_n,
+  std_u`` (deg), ``aligned`` (0/1), ``stamp`` (header stamp, s); with ``--truth-topic`` also
+  ``err_e, err_n, err_u`` (deg, phi of paper eq. 15 vs truth). One row per 0.1 s of data time
+  (as /alignment/euler_deg: ``euler_rate`` from --params, default 10 Hz) plus the final sample.
+- ``--plot``: PNG of attitude, std (with the limit accuracy) and error vs truth over time.
+  Needs matplotlib (``pip install matplotlib``), checked before any work.
+- ``--summary-json``: counts, timing, final attitude and std, config echo, limit accuracy,
+  error vs truth.
+
+With ``--truth-topic`` (``geometry_msgs/QuaternionStamped`` of the true C_b^n, as
+imu_sim_node publishes on imu_sim/truth) the estimate is compared with the truth at the
+same stamp (interpolated between neighbouring truth samples when stamps differ).
+
+The bag is streamed: memory does not grow with its length (the estimator buffers at most
+``backtrack_time`` seconds of samples; the plot keeps a decimated series). Two paths, same
+results (test_bag_tools: attitude to 1e-9 rad, identical counts, times and flag changes):
+
+- with ``--output`` or ``--truth-topic``, every message goes through
+  :meth:`ReplaySession.on_imu` in bag order, one by one, as the node takes it (the Imu
+  ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of :data:`READ_CHUNK`);
+- otherwise (summary, ``--csv``, ``--plot``) the Imu topic is read in blocks
+  (:class:`sins_align.io.bagio.TopicBlocks`: MCAP chunks parsed and sliced with numpy, rosbags
+  for other storages), decoded in bulk and fed to the estimator :data:`READ_CHUNK` samples
+  per :meth:`~sins_align.estimators.quasi_static.Aligner.update` (its fast path), cut only where the
+  per-sample behaviour needs a sample alone or a boundary: a possible backward jump (the
+  node's restart), a frame_id change and, for the CSV and the plot, the 10 Hz rows. With
+  CSV/plot at 100 Hz those blocks are too short for the fast path (an order of magnitude
+  slower than summary only; values identical to the per-sample path); from ~640 Hz they
+  take it (values then equal to rounding).
+"""
+from __future__ import annotations
+
+import argparse
+import bisect
+import csv as csv_mod
+import json
+import math
+import os
+import sys
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks,
+                                 check_bag_dir_name, check_new_output, cli_main, deserialize,
+                                 one_line, open_reader, open_writer, qos_profile,
+                                 read_message_chunks, signals_deferred)
+from sins_align.io.cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
+from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
+from sins_align.ros.align_node import NODE_PARAMS
+from sins_align.ros.outputs import (BackwardJump, StampClock, euler_deg, imu_output, imu_sample,
+                      node_diagnostics)
+from sins_align.ros.params import NODE_NAME, config_from_params, defaults, load_params_yaml
+from sins_align.core.rotation import attitude_error, dcm_from_quat, rpy_from_dcm, so3_exp, so3_log
+from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ
+
+PROG = "replay"
+
+# The node's output topics (relative names in the node, resolved at root here).
+IMU_OUT_TOPIC = "/imu/data"
+ALIGNED_TOPIC = "/alignment/aligned"
+EULER_TOPIC = "/alignment/euler_deg"
+DIAG_TOPIC = "/diagnostics"
+#: Publication periods in data time, ns (Euler: 1 / euler_rate, default 10 Hz).
+EULER_PERIOD_NS = int(round(1e9 / NODE_PARAMS["euler_rate"][0]))
+DIAG_PERIOD_NS = 1_000_000_000
+#: DiagnosticStatus.name, as the node names it.
+DIAG_NAME = f"{NODE_NAME}: alignment"
+
+IMU_TYPE = "sensor_msgs/msg/Imu"
+TRUTH_TYPE = "geometry_msgs/msg/QuaternionStamped"
+NS = 1_000_000_000
+
+CSV_COLUMNS = ("t", "qx", "qy", "qz", "qw", "roll", "pitch", "yaw", "heading",
+               "std_e", "std_n", "std_u", "aligned", "stamp")
+CSV_TRUTH_COLUMNS = ("err_e", "err_n", "err_u")
+
+
+# ----------------------------------------------------------------------------- arguments
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=PROG, description="Replay a bag of sensor_msgs/Imu through the sins_align "
+        "estimator (the same code and parameters as align_node) and write its outputs.")
+    p.add_argument("bag", metavar="BAG", help="rosbag2 bag (dir, .mcap, .db3) or ROS 1 .bag")
+    p.add_argument("--topic", help="sensor_msgs/Imu topic (default: the only one in the bag)")
+    p.add_argument("--latitude", type=float, metavar="DEG", help="latitude, deg (required "
+                   "here or in --params)")
+    p.add_argument("--height", type=float, metavar="M", help="height above the ellipsoid, m")
+    p.add_argument("--model", help="error model: constant, conventional or se3")
+    p.add_argument("--grade", help="sensor grade preset: navigation, tactical or consumer")
+    p.add_argument("--initial-rpy", type=float, nargs=3, metavar=("ROLL", "PITCH", "YAW"),
+                   help="initial REP-103 attitude of the IMU frame in ENU, deg")
+    p.add_argument("--params", metavar="YAML", help="align_node parameter file "
+                   f"(its '/**:' or '{NODE_NAME}:' section); flags override it")
+    p.add_argument("--output", metavar="OUT_DIR", help="write the node's topics to this "
+                   "rosbag2 (mcap) bag")
+    p.add_argument("--csv", metavar="FILE", help="write the 10 Hz time series as CSV")
+    p.add_argument("--plot", metavar="FILE.png", help="plot attitude and std (matplotlib)")
+    p.add_argument("--summary-json", metavar="FILE", help="write the summary as JSON")
+    p.add_argument("--truth-topic", metavar="TOPIC", help="geometry_msgs/QuaternionStamped "
+                   "truth of C_b^n (e.g. /imu_sim/truth) to report the attitude error")
+    p.add_argument("--quiet", action="store_true", help="no summary on stdout")
+    p.add_argument("--force", action="store_true", help="replace outputs that exist (a previous "
+                   "bag, CSV, plot or summary; each once the new one is complete)")
+    return p
+
+
+def params_from_args(args) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Alignment parameter values (node YAML, then the flags on top) and node-only ones.
+
+    The node-only parameters of align_node (``euler_rate``, ``queue_size``) and ROS's
+    ``use_sim_time`` may sit in the same YAML file; they are returned apart (``euler_rate``
+    sets the data-time rate of /alignment/euler_deg and the CSV rows, as in the node).
+    """
+    values: dict[str, Any] = {}
+    node_only: dict[str, Any] = {}
+    if args.params:
+        if not Path(args.params).is_file():
+            raise CliError(f"parameters file {args.params} does not exist")
+        try:
+            loaded = load_params_yaml(args.params)
+        except ValueError as e:
+            raise CliError(one_line(e)) from None
+        for k, v in loaded.items():
+            (node_only if k in NODE_PARAMS or k == "use_sim_time" else values)[k] = v
+        lat = values.get("latitude")
+        if isinstance(lat, float) and math.isnan(lat):
+            raise CliError(f"latitude in {args.params} must be a finite number, got nan")
+    for flag, name in (("latitude", "latitude"), ("height", "height"), ("model", "model"),
+                       ("grade", "grade")):
+        v = getattr(args, flag)
+        if v is not None:
+            values[name] = v
+    for flag in ("latitude", "height"):
+        v = getattr(args, flag)
+        if v is not None and not math.isfinite(v):
+            raise CliError(f"--{flag} must be a finite number, got {v}")
+    if args.initial_rpy is not None:
+        values["initial_rpy"] = [float(a) for a in args.initial_rpy]
+    rate = node_only.get("euler_rate", NODE_PARAMS["euler_rate"][0])
+    lo, hi = NODE_PARAMS["euler_rate"][2:4]
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:
+        raise CliError(f"bad parameters: euler_rate must be within [{lo:g}, {hi:g}], "
+                       f"got {rate!r}")
+    return values, node_only
+
+
+def config_or_error(values: dict[str, Any]) -> AlignConfig:
+    lat = values.get("latitude")
+    if lat is None or (isinstance(lat, float) and math.isnan(lat)):
+        raise CliError("latitude is required: pass --latitude DEG or set latitude in --params")
+    try:
+        return config_from_params(values)
+    except ValueError as e:
+        raise CliError(f"bad parameters: {one_line(e)}") from None
+
+
+def merged_params(values: dict[str, Any]) -> dict[str, Any]:
+    m = defaults()
+    m.update(values)
+    return m
+
+
+# ----------------------------------------------------------------------------- helpers
+class Ticker:
+    """True at the first stamp of every ``period_ns`` bin of data time (a data-time timer)."""
+
+    def __init__(self, period_ns: int):
+        self.period = int(period_ns)
+        self._bin: int | None = None
+
+    def due(self, ns: int) -> bool:
+        b = ns // self.period
+        if b == self._bin:
+            return False
+        self._bin = b
+        return True
+
+
+class TruthMatcher:
+    """Matches estimates to truth samples by stamp, streaming, in bounded memory.
+
+    Truth samples (ns, C_b^n) are kept for ``keep_s`` seconds of stamps. A query waits until
+    truth at or after its stamp has arrived, then takes the truth at the same stamp or
+    interpolates (SO(3)) between the two neighbours when they are at most ``max_gap_s``
+    apart; at the edges the nearest truth within ``edge_tol_s`` is used, else no match.
+    """
+
+    def __init__(self, keep_s: float = 5.0, max_gap_s: float = 1.0, edge_tol_s: float = 0.5,
+                 wait_s: float = 2.0):
+        self.ns: deque[int] = deque()
+        self.C: deque[np.ndarray] = deque()
+        self.pending: deque[tuple[int, Any]] = deque()
+        self.keep = int(keep_s * NS)
+        self.max_gap = int(max_gap_s * NS)
+        self.edge_tol = int(edge_tol_s * NS)
+        self.wait = int(wait_s * NS)
+        self.count = 0
+
+    def add_truth(self, ns: int, C: np.ndarray):
+        if self.ns and ns <= self.ns[-1]:
+            if ns == self.ns[-1]:
+                return
+            # out of order: insert (rare; keeps the deque sorted)
+            i = bisect.bisect_left(list(self.ns), ns)
+            self.ns.insert(i, ns)
+            self.C.insert(i, C)
+        else:
+            self.ns.append(ns)
+            self.C.append(C)
+        self.count += 1
+        while len(self.ns) > 2 and self.ns[0] < self.ns[-1] - self.keep:
+            self.ns.popleft()
+            self.C.popleft()
+
+    def query(self, ns: int, payload) -> list:
+        """Queue a query; returns the queries resolved so far [(payload, C_true | None)]."""
+        self.pending.append((ns, payload))
+        return self.resolve(ns)
+
+    def resolve(self, now_ns: int, final: bool = False) -> list:
+        done = []
+        while self.pending:
+            ns, payload = self.pending[0]
+            ready = final or (self.ns and self.ns[-1] >= ns) or now_ns - ns > self.wait
+            if not ready:
+                break
+            self.pending.popleft()
+            done.append((payload, self.lookup(ns)))
+        return done
+
+    def lookup(self, ns: int) -> np.ndarray | None:
+        if not self.ns:
+            return None
+        stamps = self.ns
+        i = bisect.bisect_left(stamps, ns)
+        if i < len(stamps) and stamps[i] == ns:
+            return self.C[i]
+        if 0 < i < len(stamps):
+            t0, t1 = stamps[i - 1], stamps[i]
+            if t1 - t0 <= self.max_gap:
+                a = (ns - t0) / (t1 - t0)
+                C0, C1 = self.C[i - 1], self.C[i]
+                return C0 @ so3_exp(a * so3_log(C0.T @ C1))
+        j = min(range(max(i - 1, 0), min(i + 1, len(stamps))), key=lambda k: abs(stamps[k] - ns))
+        return self.C[j] if abs(stamps[j] - ns) <= self.edge_tol else None
+
+
+class DecimatedSeries:
+    """Rows for the plot, at most ``2 * max_rows``: halves its resolution when full."""
+
+    def __init__(self, max_rows: int = 10000):
+        self.max_rows = max_rows
+        self.rows: list[tuple] = []
+        self.stride = 1
+        self._n = 0
+
+    def add(self, row: tuple, force: bool = False):
+        if force or self._n % self.stride == 0:
+            self.rows.append(row)
+            if len(self.rows) >= 2 * self.max_rows:
+                self.rows = self.rows[::2]
+                self.stride *= 2
+        self._n += 1
+
+
+def _finite_or_none(x):
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite_or_none(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite_or_none(v) for v in x]
+    if isinstance(x, np.generic):
+        return _finite_or_none(x.item())
+    return x
+
+
+def _stamp_ns(msg) -> int:
+    st = msg.header.stamp
+    return int(st.sec) * NS + int(st.nanosec)
+
+
+# ----------------------------------------------------------------------------- block feeding
+class FlipTrackingAligner(Aligner):
+    """An :class:`Aligner` that notes where its aligned flag changes inside a block update.
+
+    The block path of :class:`ReplaySession` hands the estimator thousands of samples per
+    call, but /alignment/aligned and the summary's ``aligned_changes`` name the sample at
+    which the flag changed. While ``flips`` is a list, each change is appended as
+    ``(stamp s, new value)``: the stamp is ``t_last``, the sample being processed, both on
+    the per-sample and on the fast path (which sets it before each aligned-flag check). A
+    units-check fault (filter restarted, flag dropped) is noted at the rejection that follows
+    it, once ``t_last`` holds that sample's stamp. Estimation is untouched.
+    """
+
+    flips: list | None = None
+    _drop_pending = False
+
+    def _refresh_aligned(self):
+        before = self.aligned
+        super()._refresh_aligned()
+        if self.flips is not None and self.aligned != before:
+            self.flips.append((self.t_last, self.aligned))
+
+    def _restart_filter(self):
+        if self.flips is not None and self.aligned:
+            self._drop_pending = True
+        super()._restart_filter()
+
+    def _reject(self, reason: str) -> int:
+        out = super()._reject(reason)
+        if self._drop_pending:
+            self._drop_pending = False
+            if self.flips is not None:
+                self.flips.append((self.t_last, False))
+        return out
+
+
+#: The block path needs these Aligner internals (else replay stays on the per-sample path).
+BLOCK_PATH_AVAILABLE = all(callable(getattr(Aligner, name, None))
+                           for name in ("_refresh_aligned", "_restart_filter", "_reject"))
+
+
+# ----------------------------------------------------------------------------- the session
+class ReplaySession:
+    """Runs the estimator over Imu messages and produces the node's outputs.
+
+    Feed :meth:`on_imu` (and :meth:`on_truth`) in bag order, then call :meth:`finish`; or,
+    with ``block=True`` (no bag output, no truth), feed :meth:`on_imu_block` with the Imu
+    messages decoded in bulk.
+    """
+
+    def __init__(self, config: AlignConfig, writer=None, csv_file=None, with_truth=False,
+                 keep_plot=False, euler_period_ns: int = EULER_PERIOD_NS, block: bool = False):
+        if block and (writer is not None or with_truth):
+            raise ValueError("the block path writes no bag and takes no truth")
+        self.config = config
+        self.block = block
+        self.al = FlipTrackingAligner(config) if block else Aligner(config)
+        self.clock = StampClock()
+        self.msgs = Messages()
+        self.writer = writer
+        self.with_truth = with_truth
+        self.truth = TruthMatcher() if with_truth else None
+        self.series = DecimatedSeries() if keep_plot else None
+        self.euler_tick = Ticker(euler_period_ns)
+        self.diag_tick = Ticker(DIAG_PERIOD_NS)
+        self.samples = 0
+        self.first_ns: int | None = None
+        self.last_ns: int | None = None
+        self.last_header: tuple[int, int, str] | None = None   # of the last accepted sample
+        self.last_frame_id = ""                                 # of the last accepted sample
+        self._aligned_pub: bool | None = None
+        self._jump_back = BackwardJump()
+        self.resets = 0
+        self.last_reset_reason = ""
+        self._rejected_seen = 0
+        self._diag_prev: tuple[int, int] | None = None     # (ns, samples) at the last diag
+        self.aligned_changes: list[tuple[float, bool]] = []
+        self.final_error: np.ndarray | None = None
+        self.final_truth: np.ndarray | None = None
+        self.max_err_after_aligned = np.zeros(3)
+        self.truth_matched = 0
+        self.truth_unmatched = 0
+        self._last_row_ns: int | None = None
+        #: how the bag was read: (path, why rosbags read it or None)
+        self.reading: tuple[str, str | None] = ("", None)
+        self._csv = None
+        if csv_file is not None:
+            self._csv = csv_mod.writer(csv_file, lineterminator="\n")
+            self._csv.writerow(CSV_COLUMNS + (CSV_TRUTH_COLUMNS if with_truth else ()))
+        if writer is not None:
+            st = self.msgs.store
+            self.c_imu = writer.add_connection(IMU_OUT_TOPIC, Messages.IMU, typestore=st,
+                                               offered_qos_profiles=[qos_profile()])
+            self.c_aligned = writer.add_connection(
+                ALIGNED_TOPIC, Messages.BOOL, typestore=st,
+                offered_qos_profiles=[qos_profile(transient_local=True, depth=1)])
+            self.c_euler = writer.add_connection(EULER_TOPIC, Messages.VECTOR3_STAMPED,
+                                                 typestore=st,
+                                                 offered_qos_profiles=[qos_profile()])
+            self.c_diag = writer.add_connection(DIAG_TOPIC, Messages.DIAGNOSTIC_ARRAY,
+                                                typestore=st,
+                                                offered_qos_profiles=[qos_profile()])
+
+    # -- input ---------------------------------------------------------------------------
+    def on_imu(self, msg):
+        """One sensor_msgs/Imu message (rosbags object, ROS 1 or ROS 2 layout).
+
+        The data path of align_node's ``_on_imu``: stamps far behind the last accepted one
+        several times in a row restart the alignment; accepted samples (and the first one)
+        are republished with the orientation, rejected ones are not; the aligned flag is
+        published when it changes.
+        """
+        al = self.al
+        t, w, f = imu_sample(msg, self.clock)
+        if self._jump_back(self.al, t):
+            self._restart(f"input stamps jumped back by {al.t_last - t:.3f} s")
+        n_rej = sum(al.rejected.values())
+        al.update(t, w, f)
+        accepted = sum(al.rejected.values()) == n_rej
+        ns = _stamp_ns(msg)
+        self.samples += 1
+        if self.first_ns is None:
+            self.first_ns = ns
+        self.last_ns = ns
+        wr = self.writer
+        if accepted:
+            st = msg.header.stamp
+            self.last_header = (int(st.sec), int(st.nanosec), msg.header.frame_id)
+            self.last_frame_id = msg.header.frame_id
+            if wr is not None:
+                self._publish_imu(msg, ns)
+        self._publish_aligned(ns)
+        tick = self.euler_tick.due(ns)
+        if wr is not None:
+            if tick and self.last_header is not None and al.t_last is not None:
+                wr.write(self.c_euler, ns, self.msgs.serialize(self.msgs.vector3_stamped(
+                    self.msgs.header(*self.last_header), euler_deg(al))))
+            if self.diag_tick.due(ns):
+                self._publish_diagnostics(ns)
+        if tick:
+            self._row(ns)
+        if self.truth is not None:
+            self._take(self.truth.resolve(ns))
+
+    def on_imu_block(self, batch: "ImuBatch | ImuSamples"):
+        """Imu messages decoded in bulk, in bag order (``block=True``): what :meth:`on_imu`
+        does for each, with the estimator fed whole runs of samples.
+
+        Stamps become seconds through the same :class:`StampClock` arithmetic. The block is
+        cut (each piece one :meth:`Aligner.update` call, which takes its clean runs on the
+        fast path) before and after every sample that could be far behind the last accepted
+        stamp (handled alone, exactly as :meth:`on_imu`: the node's restart on a backward
+        jump), wherever the frame_id changes (so the frame of the last accepted sample is
+        known from the rejection counts), and, when CSV rows or the plot are kept, after the
+        first sample of every ``euler_period`` of data time (the row is taken there, after
+        that sample, as :meth:`on_imu` does). Changes of the aligned flag are placed at their
+        sample by :class:`FlipTrackingAligner`.
+        """
+        if not self.block:
+            raise RuntimeError("on_imu_block needs a session made with block=True")
+        n = len(batch)
+        if n == 0:
+            return
+        al = self.al
+        sec, nsec = batch.sec, batch.nanosec
+        if self.clock.epoch is None:
+            self.clock(int(sec[0]), int(nsec[0]))
+        # StampClock.__call__, element-wise: float(sec - epoch) + nanosec * 1e-9
+        t = (sec - self.clock.epoch).astype(np.float64) + nsec.astype(np.float64) * 1e-9
+        ns = sec * NS + nsec
+        w, f = batch.gyro, batch.accel
+        if self.first_ns is None:
+            self.first_ns = int(ns[0])
+        cut = np.zeros(n + 1, dtype=bool)
+        cut[0] = cut[n] = True
+        # t_last never exceeds the largest stamp seen: a sample not below that bound minus
+        # max_gap cannot be a backward jump; the others go alone through the BackwardJump check
+        finite = np.isfinite(t)
+        tl = al.t_last
+        bound = np.maximum.accumulate(np.concatenate((
+            [-np.inf if tl is None else tl], np.where(finite[:-1], t[:-1], -np.inf))))
+        back = finite & (t < bound - self.config.max_gap)
+        bi = np.flatnonzero(back)
+        cut[bi] = True
+        cut[bi + 1] = True
+        # the data-time ticks of Ticker.due (first sample of each period bin)
+        bins = ns // self.euler_tick.period
+        due = np.empty(n, dtype=bool)
+        due[0] = self.euler_tick._bin is None or bins[0] != self.euler_tick._bin
+        np.not_equal(bins[1:], bins[:-1], out=due[1:])
+        self.euler_tick._bin = int(bins[-1])
+        rows = self._csv is not None or self.series is not None
+        if rows:
+            cut[np.flatnonzero(due) + 1] = True
+        frames = batch.frame_id
+        if frames.count(frames[0]) != n:
+            for i in range(1, n):
+                if frames[i] != frames[i - 1]:
+                    cut[i] = True
+        bounds = np.flatnonzero(cut).tolist()
+        for a, b in zip(bounds, bounds[1:]):
+            if back[a]:
+                if self._jump_back(al, float(t[a])):
+                    self._restart(f"input stamps jumped back by {al.t_last - float(t[a]):.3f} s")
+            else:
+                self._jump_back.run = 0
+            n_rej = sum(al.rejected.values())
+            before = al.aligned
+            al.flips = flips = []
+            try:
+                al.update(t[a:b], w[a:b], f[a:b])
+            finally:
+                al.flips = None
+            if sum(al.rejected.values()) - n_rej < b - a:
+                self.last_frame_id = frames[a]
+            self.samples += b - a
+            self.last_ns = int(ns[b - 1])
+            self._publish_flips(flips, before, t[a:b], ns[a:b])
+            if rows and due[b - 1]:
+                self._row(self.last_ns)
+
+    def _publish_flips(self, flips, before: bool, t: np.ndarray, ns: np.ndarray):
+        """aligned_changes of one update call, as :meth:`_publish_aligned` after each sample."""
+        events: list[tuple[int, bool]] = []        # (sample, flag after it)
+        j0 = 0
+        for t_flip, state in flips:
+            hit = np.flatnonzero(t[j0:] == t_flip)
+            j = j0 + int(hit[0]) if len(hit) else len(t) - 1
+            if events and events[-1][0] == j:
+                events[-1] = (j, state)
+            else:
+                events.append((j, state))
+            j0 = j
+        if self._aligned_pub is None and (not events or events[0][0] != 0):
+            events.insert(0, (0, before))
+        # a change the hooks did not place (a restart before a lone sample): after the last
+        if self.al.aligned != (events[-1][1] if events else self._aligned_pub):
+            events.append((len(t) - 1, self.al.aligned))
+        for j, state in events:
+            if state != self._aligned_pub:
+                self._aligned_pub = state
+                self.aligned_changes.append(((int(ns[j]) - self.first_ns) / NS, state))
+
+    def on_truth(self, msg):
+        q = msg.quaternion
+        self.truth.add_truth(_stamp_ns(msg), dcm_from_quat(np.array([q.x, q.y, q.z, q.w])))
+        if self.last_ns is not None:
+            self._take(self.truth.resolve(self.last_ns))
+
+    # -- node behaviour (align_node._restart) ---------------------------------------------
+    def _restart(self, why: str):
+        self._jump_back.run = 0
+        self.al.reset()
+        self.resets += 1
+        self.last_reset_reason = why
+
+    # -- node outputs ----------------------------------------------------------------------
+    def _publish_imu(self, msg, ns: int):
+        m = self.msgs
+        out = imu_output(self.al)
+        w, a = msg.angular_velocity, msg.linear_acceleration
+        imu = m.imu(m.header(*self.last_header), out.orientation_xyzw,
+                    out.orientation_covariance, (w.x, w.y, w.z), msg.angular_velocity_covariance,
+                    (a.x, a.y, a.z), msg.linear_acceleration_covariance)
+        self.writer.write(self.c_imu, ns, m.serialize(imu))
+
+    def _publish_aligned(self, ns: int):
+        al = self.al
+        if al.aligned == self._aligned_pub:
+            return
+        self._aligned_pub = al.aligned
+        self.aligned_changes.append(((ns - self.first_ns) / NS, al.aligned))
+        if self.writer is not None:
+            self.writer.write(self.c_aligned, ns, self.msgs.serialize(self.msgs.bool(al.aligned)))
+
+    def _publish_diagnostics(self, ns: int):
+        """align_node's diagnostics, with data time for the rate and the stamp."""
+        al, m = self.al, self.msgs
+        rate = None
+        if self._diag_prev is not None and ns > self._diag_prev[0]:
+            rate = (self.samples - self._diag_prev[1]) / ((ns - self._diag_prev[0]) / NS)
+        self._diag_prev = (ns, self.samples)
+        level, text, values, self._rejected_seen = node_diagnostics(
+            al, rate, self._rejected_seen, self.resets, self.last_reset_reason)
+        frame = self.last_header[2] if self.last_header else ""
+        sec, nsec = divmod(ns, NS)
+        arr = m.diagnostic_array(m.header(sec, nsec, frame),
+                                 [(level, DIAG_NAME, text, frame, values)])
+        self.writer.write(self.c_diag, ns, m.serialize(arr))
+
+    # -- time series -----------------------------------------------------------------------
+    def _row(self, ns: int, force: bool = False):
+        al = self.al
+        self._last_row_ns = ns
+        q = al.quaternion
+        rpy = al.rpy_deg
+        std = al.std_enu_deg
+        row = ((ns - self.first_ns) / NS, q, rpy, al.heading_deg, std, al.aligned, ns)
+        if self.truth is not None:
+            self._take(self.truth.query(ns, (row, al.dcm.copy())))
+        else:
+            self._emit(row, None, force)
+
+    def _take(self, resolved):
+        for (row, C_est), C_true in resolved:
+            err = None
+            if C_true is not None:
+                err = attitude_error(C_true, C_est) / DEG
+                self.truth_matched += 1
+                if row[5]:
+                    self.max_err_after_aligned = np.maximum(self.max_err_after_aligned,
+                                                            np.abs(err))
+                if row[6] == self.last_ns:
+                    self.final_error = err
+                    self.final_truth = rpy_from_dcm(C_true) / DEG
+            else:
+                self.truth_unmatched += 1
+            self._emit(row, err, row[6] == self.last_ns)
+
+    def _emit(self, row, err, force=False):
+        t, q, rpy, heading, std, aligned, ns = row
+        if self._csv is not None:
+            vals = [f"{t:.9f}", *(f"{x:.12g}" for x in q), *(f"{x:.9g}" for x in rpy),
+                    f"{heading:.9g}", *(f"{x:.6g}" for x in std), str(int(aligned)),
+                    f"{ns // NS}.{ns % NS:09d}"]
+            if self.with_truth:
+                vals += [f"{x:.6g}" for x in err] if err is not None else ["", "", ""]
+            self._csv.writerow(vals)
+        if self.series is not None:
+            e = tuple(err) if err is not None else (math.nan,) * 3
+            self.series.add((t, *rpy, heading, *std, *e), force=force)
+
+    # -- end ---------------------------------------------------------------------------------
+    def finish(self):
+        """Final sample row (if not on a tick) and the pending truth matches."""
+        if self.samples == 0:
+            return
+        if self._last_row_ns != self.last_ns:
+            self._row(self.last_ns, force=True)
+        if self.truth is not None:
+            self._take(self.truth.resolve(self.last_ns, final=True))
+
+    def summary(self, config_echo: dict[str, Any]) -> dict[str, Any]:
+        al = self.al
+        s = al.summary()
+        out: dict[str, Any] = {
+            "samples": self.samples,
+            "samples_used": al.samples_used,
+            "rejected": dict(al.rejected),
+            "events": dict(al.events),
+            "duration_s": (self.last_ns - self.first_ns) / NS,
+            "aligned": al.aligned,
+            "time_to_aligned_s": al.time_to_aligned,
+            "status": al.status,
+            "resets": self.resets,
+            "stage": al.stage,
+            "heading_observable": al.heading_observable,
+            "aligned_changes": [{"t_s": t, "aligned": a} for t, a in self.aligned_changes],
+            "final": {
+                "stamp_s": self.last_ns / NS,
+                "frame_id": self.last_frame_id,
+                "orientation_xyzw": s["orientation_xyzw"],
+                "rpy_deg": s["rpy_deg"],
+                "heading_deg": s["heading_deg"],
+                "std_enu_deg": s["std_enu_deg"],
+                "covariance_enu_rad2": al.covariance.reshape(-1).tolist(),
+            },
+            "config": config_echo,
+            "limit_std_enu_deg": s["limit_std_enu_deg"],
+            "fine_velocity_noise_mps": s["fine_velocity_noise_mps"],
+            "nis": s["nis"],
+        }
+        if self.truth is not None:
+            fin = out["final"]
+            fin["error_enu_deg"] = None if self.final_error is None else self.final_error.tolist()
+            fin["truth_rpy_deg"] = None if self.final_truth is None else self.final_truth.tolist()
+            out["truth"] = {
+                "samples": self.truth.count,
+                "matched_rows": self.truth_matched,
+                "unmatched_rows": self.truth_unmatched,
+                "max_abs_error_after_aligned_enu_deg": (
+                    self.max_err_after_aligned.tolist() if al.time_to_aligned is not None
+                    else None),
+            }
+        return out
+
+
+# ----------------------------------------------------------------------------- bag input
+def select_imu_connections(reader, topic: str | None, path) -> tuple[str, list]:
+    topics = reader.topics
+    if topic is None:
+        imu = sorted(t for t, info in topics.items() if info.msgtype == IMU_TYPE)
+        if not imu:
+            listing = ", ".join(f"{t} ({i.msgtype})" for t, i in sorted(topics.items()))
+            raise CliError(f"no {IMU_TYPE} topic in {path}" + (f" (topics: {listing})"
+                                                               if listing else " (empty bag)"))
+        if len(imu) > 1:
+            raise CliError(f"{path} has several {IMU_TYPE} topics ({', '.join(imu)}); "
+                           f"choose one with --topic")
+        topic = imu[0]
+    info = topics.get(topic)
+    if info is None:
+        listing = ", ".join(sorted(topics)) or "none"
+        raise CliError(f"topic {topic} not in {path} (topics: {listing})")
+    if info.msgtype != IMU_TYPE:
+        raise CliError(f"topic {topic} in {path} is {info.msgtype}, not {IMU_TYPE}")
+    conns = [c for c in reader.connections if c.topic == topic]
+    if sum(c.msgcount for c in conns) == 0 and info.msgcount == 0:
+        raise CliError(f"topic {topic} in {path} has no messages")
+    return topic, conns
+
+
+def select_truth_connections(reader, topic: str, path) -> list:
+    info = reader.topics.get(topic)
+    if info is None:
+        raise CliError(f"truth topic {topic} not in {path} (topics: "
+                       f"{', '.join(sorted(reader.topics)) or 'none'})")
+    if info.msgtype != TRUTH_TYPE:
+        raise CliError(f"truth topic {topic} in {path} is {info.msgtype}, not {TRUTH_TYPE}")
+    return [c for c in reader.connections if c.topic == topic]
+
+
+#: Messages read and decoded at once (bounds the memory of the bulk decoding); also the
+#: samples per estimator call on the block path (fixed, whatever the bag's chunking).
+READ_CHUNK = 16384
+
+
+def imu_messages(reader, items: list, layout: str | None, path):
+    """Iterator over the Imu messages of ``items`` [(connection, log ns, raw)], in order.
+
+    With a known ``layout`` (:func:`sins_align.io.cdr.reader_imu_layout`) they are decoded in
+    bulk (:func:`sins_align.io.cdr.decode_imu_batch`); the messages it cannot take, and every
+    message when ``layout`` is None, are deserialised by rosbags, a malformed one raising
+    the CliError of :func:`~sins_align.io.bagio.deserialize` (naming its log time).
+    """
+    if layout is None:
+        return (deserialize(reader, raw, IMU_TYPE, path, ns) for _, ns, raw in items)
+    batch = decode_imu_batch(
+        [raw for _, _, raw in items], layout,
+        fallback=lambda raw, i: deserialize(reader, raw, IMU_TYPE, path, items[i][1]))
+    return batch.messages()
+
+
+class ImuSamples:
+    """What :meth:`ReplaySession.on_imu_block` takes from decoded Imu messages."""
+
+    __slots__ = ("sec", "nanosec", "frame_id", "gyro", "accel")
+
+    def __init__(self, sec, nanosec, frame_id, gyro, accel):
+        self.sec, self.nanosec, self.frame_id = sec, nanosec, frame_id
+        self.gyro, self.accel = gyro, accel
+
+    def __len__(self) -> int:
+        return len(self.sec)
+
+    @classmethod
+    def join(cls, parts: list) -> "ImuSamples":
+        if len(parts) == 1:
+            p = parts[0]
+            return cls(p.sec, p.nanosec, list(p.frame_id), p.gyro, p.accel)
+        return cls(np.concatenate([p.sec for p in parts]),
+                   np.concatenate([p.nanosec for p in parts]),
+                   [x for p in parts for x in p.frame_id],
+                   np.concatenate([p.gyro for p in parts]),
+                   np.concatenate([p.accel for p in parts]))
+
+    def __getitem__(self, sl: slice) -> "ImuSamples":
+        return ImuSamples(self.sec[sl], self.nanosec[sl], self.frame_id[sl], self.gyro[sl],
+                          self.accel[sl])
+
+
+def feed_blocks(batches, size: int):
+    """Decoded batches (any lengths) regrouped into blocks of ``size`` samples, the last one
+    shorter: the estimator gets the same block boundaries whatever the bag's storage and
+    chunking, so MCAP, sqlite3 and ROS 1 copies of a bag give bit-identical results."""
+    pending: list = []
+    have = 0
+    for b in batches:
+        if not len(b):
+            continue
+        pending.append(b)
+        have += len(b)
+        if have < size:
+            continue
+        joined = ImuSamples.join(pending)
+        k = 0
+        while have - k >= size:
+            yield joined[k:k + size]
+            k += size
+        pending = [joined[k:]] if k < have else []
+        have -= k
+    if have:
+        yield ImuSamples.join(pending)
+
+
+def config_echo(config: AlignConfig, params: dict[str, Any]) -> dict[str, Any]:
+    sp = config.specs
+    return {
+        "latitude_deg": config.latitude_deg,
+        "height_m": config.height_m,
+        "model": config.model,
+        "grade": params.get("grade"),
+        "specs": {"gyro_bias_deg_h": sp.gyro_bias / DPH,
+                  "gyro_arw_deg_sqrt_h": sp.gyro_arw / DPSH,
+                  "accel_bias_ug": sp.accel_bias / UG,
+                  "accel_vrw_ug_sqrt_hz": sp.accel_vrw / UG_PSHZ},
+        "initial_rpy_deg": None if config.initial_rpy_deg is None else list(config.initial_rpy_deg),
+        "backtrack": config.backtrack,
+        "backtrack_time_s": config.backtrack_time,
+        "params": params,
+    }
+
+
+def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = None,
+           truth_topic: str | None = None, output: Path | None = None, csv_path: Path | None = None,
+           keep_plot: bool = False, progress: bool | None = None,
+           params: dict[str, Any] | None = None,
+           euler_period_ns: int = EULER_PERIOD_NS, per_sample: bool = False,
+           fast_mcap: bool = True) -> tuple[dict[str, Any], ReplaySession]:
+    """Replay ``bag`` and write the optional outputs to the given (temporary) paths.
+
+    Two paths, same results: with an ``output`` bag or a ``truth_topic`` (or ``per_sample``,
+    or an Imu definition the bulk decoder does not know) every message goes through
+    :meth:`ReplaySession.on_imu`, in bag order, as the node takes it; otherwise the Imu
+    messages are read in blocks (:class:`~sins_align.io.bagio.TopicBlocks`: MCAP parsed with
+    numpy, ``fast_mcap=False`` to read with rosbags only), decoded in bulk and fed to
+    :meth:`ReplaySession.on_imu_block`.
+
+    Returns the summary dict and the session (for the plot). Raises CliError on bad input.
+    """
+    t_wall = time.perf_counter()
+    reader = open_reader(bag)
+    writer = None
+    csv_file = None
+    try:
+        topic, conns = select_imu_connections(reader, topic, bag)
+        truth_conns = select_truth_connections(reader, truth_topic, bag) if truth_topic else []
+        layout = reader_imu_layout(reader)
+        block = (BLOCK_PATH_AVAILABLE and not per_sample and output is None and not truth_conns
+                 and layout is not None)
+        if output is not None:
+            writer = open_writer(Path(output), "mcap", "zstd")
+        if csv_path is not None:
+            csv_file = open(csv_path, "w", newline="", encoding="utf-8")
+        session = ReplaySession(config, writer=writer, csv_file=csv_file,
+                                with_truth=bool(truth_conns), keep_plot=keep_plot,
+                                euler_period_ns=euler_period_ns, block=block)
+        total = sum(c.msgcount for c in conns + truth_conns)
+        bar = Progress(total, PROG, enabled=progress)
+        n = 0
+        if block:
+            blocks = TopicBlocks(reader, conns, bag, READ_CHUNK, fast=fast_mcap)
+            decoded = (decode_imu_array(mb.buf, mb.starts, mb.sizes, layout, fallback=lambda
+                                        raw, i, mb=mb: deserialize(reader, raw, IMU_TYPE, bag,
+                                                                   int(mb.log_ns[i])))
+                       for mb in blocks)
+            for samples in feed_blocks(decoded, READ_CHUNK):
+                session.on_imu_block(samples)
+                n += len(samples)
+                bar.update(n)
+            session.reading = ("mcap-numpy" if blocks.fallback_reason is None else
+                               "rosbags" if blocks.fast_messages == 0 else "mcap-numpy+rosbags",
+                               blocks.fallback_reason)
+        else:
+            truth_ids = {id(c) for c in truth_conns}
+            for chunk in read_message_chunks(reader, conns + truth_conns, bag, READ_CHUNK):
+                imu_items = [it for it in chunk if id(it[0]) not in truth_ids] if truth_ids \
+                    else chunk
+                imu_msgs = imu_messages(reader, imu_items, layout, bag)
+                for conn, log_ns, raw in chunk:
+                    if id(conn) in truth_ids:
+                        session.on_truth(deserialize(reader, raw, conn.msgtype, bag, log_ns))
+                    else:
+                        session.on_imu(next(imu_msgs))
+                    n += 1
+                    if n % 512 == 0:
+                        bar.update(n)
+            session.reading = ("rosbags", "per-sample path")
+        bar.close()
+        if session.samples == 0:
+            raise CliError(f"topic {topic} in {bag} has no messages")
+        session.finish()
+        if writer is not None:
+            writer.close()
+            writer = None
+        if csv_file is not None:
+            csv_file.close()
+            csv_file = None
+    except BaseException:
+        if writer is not None:
+            try:
+                writer.abort()
+            except Exception:   # noqa: BLE001 - already failing
+                pass
+        if csv_file is not None:
+            csv_file.close()
+        raise
+    finally:
+        reader.close()
+    wall = time.perf_counter() - t_wall
+    params = params if params is not None else {}
+    summ = session.summary(config_echo(config, params))
+    summ = {"bag": str(bag), "topic": topic, "truth_topic": truth_topic, **summ,
+            "wall_time_s": wall, "messages_per_s": n / wall if wall > 0 else None}
+    return _finite_or_none(summ), session
+
+
+# ----------------------------------------------------------------------------- plot
+def _need_matplotlib():
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise CliError("--plot needs matplotlib, which is not installed: "
+                       "pip install matplotlib") from None
+
+
+def write_plot(path: Path, session: ReplaySession, summary: dict[str, Any]):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = np.array(session.series.rows, dtype=float).reshape(-1, 11)
+    t = rows[:, 0]
+    truth = session.with_truth
+    fig, axes = plt.subplots(4 if truth else 3, 1, figsize=(10, 11 if truth else 8.5),
+                             sharex=True)
+    ax = axes[0]
+    ax.plot(t, rows[:, 1], label="roll")
+    ax.plot(t, rows[:, 2], label="pitch")
+    ax.set_ylabel("deg")
+    ax.set_title(f"{Path(summary['bag']).name} {summary['topic']}: attitude (REP-103, ENU)")
+    ax.legend(loc="best")
+    ax = axes[1]
+    ax.plot(t, rows[:, 4], color="C2", label="true heading (x axis, CW from North)")
+    ax.set_ylabel("deg")
+    ax.legend(loc="best")
+    ax = axes[2]
+    lim = summary["limit_std_enu_deg"]
+    for i, (name, col) in enumerate((("E", "C0"), ("N", "C1"), ("U", "C2"))):
+        ax.semilogy(t, rows[:, 5 + i], color=col, label=f"std {name}")
+        if lim[i] is not None:
+            ax.axhline(lim[i], color=col, ls="--", lw=0.8, label=f"limit {name}")
+    if summary["time_to_aligned_s"] is not None:
+        for a in axes:
+            a.axvline(summary["time_to_aligned_s"], color="k", ls=":", lw=0.8)
+    ax.set_ylabel("deg (1 sigma)")
+    ax.legend(loc="best", ncol=2, fontsize="small")
+    if truth:
+        ax = axes[3]
+        for i, (name, col) in enumerate((("E", "C0"), ("N", "C1"), ("U", "C2"))):
+            ax.plot(t, rows[:, 8 + i], color=col, label=f"error {name}")
+            ax.fill_between(t, -3 * rows[:, 5 + i], 3 * rows[:, 5 + i], color=col, alpha=0.12)
+        ax.set_ylabel("deg (shaded: 3 sigma)")
+        ax.set_ylim(*_robust_limits(rows[:, 8:11]))
+        ax.legend(loc="best", fontsize="small")
+    axes[-1].set_xlabel("time since first sample, s")
+    fig.tight_layout()
+    fig.savefig(path, format="png", dpi=100)
+    plt.close(fig)
+
+
+def _robust_limits(err: np.ndarray) -> tuple[float, float]:
+    """Error axis limits: the second half of the run stays readable despite the transient."""
+    e = np.abs(err[np.isfinite(err).all(axis=1)])
+    if e.size == 0:
+        return -1.0, 1.0
+    m = 1.5 * max(float(e[len(e) // 2:].max()), float(np.median(e)))
+    return (-m, m) if m > 0 else (-1.0, 1.0)
+
+
+# ----------------------------------------------------------------------------- CLI
+def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
+    c = s["config"]
+    fin = s["final"]
+    rej = ", ".join(f"{k} {v}" for k, v in sorted(s["rejected"].items())) or "none"
+
+    def f3(v, fmt="{:.4f}"):
+        return " ".join("-" if x is None else fmt.format(x) for x in v)
+
+    lines = [
+        f"replay {s['bag']}  topic {s['topic']}",
+        f"  config    latitude {c['latitude_deg']:.6f} deg, height {c['height_m']:g} m, "
+        f"model {c['model']}, grade {c['grade']}",
+        f"  samples   {s['samples']} ({s['samples_used']} used), rejected: {rej}",
+        f"  duration  {s['duration_s']:.3f} s, status {s['status']} ({s['stage']} pass), "
+        + (f"aligned after {s['time_to_aligned_s']:.2f} s" if s["time_to_aligned_s"] is not None
+           else "never aligned") + ("" if s["aligned"] else "; not aligned at the end"),
+        f"  final     roll {fin['rpy_deg'][0]:.4f}  pitch {fin['rpy_deg'][1]:.4f}  "
+        f"yaw {fin['rpy_deg'][2]:.4f} deg (REP-103, ENU); heading {fin['heading_deg']:.4f} deg "
+        f"true",
+        f"  std E N U {f3(fin['std_enu_deg'])} deg   limit {f3(s['limit_std_enu_deg'])} deg",
+    ]
+    if "error_enu_deg" in fin:
+        err = fin["error_enu_deg"]
+        if err is None:
+            lines.append("  vs truth  no truth at the final stamp")
+        else:
+            sig = [abs(e) / sd for e, sd in zip(err, fin["std_enu_deg"])]
+            lines.append(f"  vs truth  error E N U {f3(err)} deg ({f3(sig, '{:.1f}')} sigma)")
+    lines.append(f"  speed     {s['messages_per_s']:.0f} msg/s ({s['wall_time_s']:.2f} s wall)")
+    for what, p in outputs.items():
+        lines.append(f"  wrote     {what} {p}")
+    print("\n".join(lines), file=file)
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.plot:
+        _need_matplotlib()
+    if not Path(args.bag).exists():
+        raise CliError(f"bag {args.bag} does not exist")
+    outs = {}
+    for what, p, is_dir in (("bag", args.output, True), ("csv", args.csv, False),
+                            ("plot", args.plot, False), ("summary", args.summary_json, False)):
+        if p:
+            flag = {"bag": "--output", "summary": "--summary-json"}.get(what, f"--{what}")
+            if is_dir:
+                check_bag_dir_name(p, flag)
+            outs[what] = (check_new_output(p, flag, force=args.force, is_dir=is_dir), is_dir)
+    if len({str(p.resolve()) for p, _ in outs.values()}) != len(outs):
+        raise CliError("the output paths must differ")
+    if any(p.resolve() == Path(args.bag).resolve() for p, _ in outs.values()):
+        raise CliError("an output path is the input bag")
+    values, node_only = params_from_args(args)
+    config = config_or_error(values)
+    params = merged_params(values)
+    euler_rate = float(node_only.get("euler_rate", NODE_PARAMS["euler_rate"][0]))
+
+    atomic = {w: AtomicOutput(p, is_dir=d, force=args.force) for w, (p, d) in outs.items()}
+    try:
+        for a in atomic.values():
+            a.__enter__()
+        summary, session = replay(
+            args.bag, config, topic=args.topic, truth_topic=args.truth_topic,
+            output=atomic["bag"].tmp if "bag" in atomic else None,
+            csv_path=atomic["csv"].tmp if "csv" in atomic else None,
+            keep_plot="plot" in atomic, params=params,
+            euler_period_ns=int(round(1e9 / euler_rate)))
+        if "plot" in atomic:
+            write_plot(atomic["plot"].tmp, session, summary)
+        if "summary" in atomic:
+            atomic["summary"].tmp.write_text(json.dumps(summary, indent=2, allow_nan=False)
+                                             + "\n")
+        with signals_deferred():        # all outputs, or none
+            for a in atomic.values():
+                a.commit()
+    finally:
+        for a in atomic.values():
+            a.discard()
+    if not args.quiet:
+        print_summary(summary, {w: str(p) for w, (p, _) in outs.items()})
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return cli_main(PROG, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
