@@ -26,7 +26,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_helpers import cli, listing
 from inertial_alignment import inertial_frame_alignment
+import sins_align
 from sins_align.tools import import_imu
 from sins_align.tools import replay
 from sins_align.tools import simulate
@@ -46,17 +48,6 @@ SIM_ARGS = ["--latitude", str(LAT), "--rpy", *map(str, SIM["rpy"]), "--duration"
             str(SIM["duration"]), "--rate", str(SIM["rate"]), "--seed", str(SIM["seed"]),
             "--grade", SIM["grade"]]
 PSINS_LAT = 34.246048
-
-
-def cli(mod, args, capsys):
-    """Run a tool's main() in-process: (exit code, stdout, stderr)."""
-    rc = mod.main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def listing(d: Path) -> set[str]:
-    return {str(p.relative_to(d)) for p in d.rglob("*")}
 
 
 def read_topic(bag: Path, topic: str):
@@ -432,7 +423,7 @@ def test_params_yaml_is_the_node_format_and_flags_override_it(work, sim_bag, cap
     c = json.loads(js.read_text())["config"]
     assert c["model"] == "constant" and c["backtrack_time_s"] == 30.0 and c["latitude_deg"] == 34
     # the node's own parameter file (with node-only euler_rate/queue_size) works as it is
-    node_yaml = Path(replay.__file__).parent / "config" / "align.yaml"
+    node_yaml = Path(sins_align.__file__).parent / "config" / "align.yaml"
     js2 = work / "params_node.json"
     rc, _, err = cli(replay, [sim_bag, "--params", node_yaml, "--summary-json", js2, "--quiet"],
                      capsys)

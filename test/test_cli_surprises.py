@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_helpers import cli, listing
 from sins_align.tools import import_imu
 
 from sins_align.tools import replay
@@ -27,17 +28,6 @@ from sins_align.tools import simulate
 
 G = 9.80665
 
-
-def cli(mod, args, capsys):
-    """Run a tool's main() in-process: (exit code, stdout, stderr)."""
-    rc = mod.main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def everything(d: Path) -> set[str]:
-    """Every entry under ``d``, hidden ones included."""
-    return {str(p.relative_to(d)) for p in d.rglob("*")}
 
 
 def imu_values(bag: Path):
@@ -84,7 +74,7 @@ def test_simulate_and_import_refuse_an_existing_output_unless_force(tmp_path, ca
     rc, _, err = cli(simulate, ["--duration", "3", "--force", out], capsys)
     assert rc == 0, err
     assert len(imu_values(out)[0]) == 300 and len(t1) == 200
-    assert everything(tmp_path) == {"bag", *(f"bag/{p.name}" for p in out.iterdir())}
+    assert listing(tmp_path) == {"bag", *(f"bag/{p.name}" for p in out.iterdir())}
 
     csv = tmp_path / "log.csv"
     csv.write_text("t,gx,gy,gz,ax,ay,az\n" + "".join(
@@ -99,12 +89,12 @@ def test_simulate_and_import_refuse_an_existing_output_unless_force(tmp_path, ca
     keep = tmp_path / "my_documents"
     keep.mkdir()
     (keep / "thesis.txt").write_text("precious\n")
-    before = everything(tmp_path)
+    before = listing(tmp_path)
     rc, _, err = cli(simulate, ["--duration", "2", "--force", keep], capsys)
     one_error_line(rc, err, "simulate", "not a rosbag2 bag")
     rc, _, err = cli(import_imu, [csv, csv, "--force"], capsys)
     one_error_line(rc, err, "import_imu", "not a directory")
-    assert everything(tmp_path) == before
+    assert listing(tmp_path) == before
 
 
 def test_replay_refuses_existing_outputs_unless_force(sim_bag, tmp_path, capsys):
@@ -129,7 +119,7 @@ def test_replay_refuses_existing_outputs_unless_force(sim_bag, tmp_path, capsys)
     assert json.loads(outs["--summary-json"].read_text())["config"]["model"] == "conventional"
     assert outs["--csv"].read_text().startswith("t,qx,qy,qz,qw")
     assert all(p.stat().st_mtime_ns > stamp[p] for p in outs.values() if p.is_file())
-    assert not [n for n in everything(tmp_path) if n.startswith(".")], everything(tmp_path)
+    assert not [n for n in listing(tmp_path) if n.startswith(".")], listing(tmp_path)
     # never the input, never a directory in place of a file
     rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--output", sim_bag, "--force"],
                      capsys)
@@ -190,7 +180,7 @@ def test_sigterm_and_sighup_remove_partial_outputs_with_one_line(tool, sig, long
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0] == (
         f"{tool}: terminated by {sig}; unfinished outputs removed"), err
-    assert everything(tmp_path) == set(), everything(tmp_path)
+    assert listing(tmp_path) == set(), listing(tmp_path)
 
 
 # ---------------------------------------------------------------------------- import units
@@ -238,11 +228,11 @@ def test_import_honours_units_in_header_names(tmp_path, capsys):
 def test_import_refuses_units_it_cannot_honour(header, extra, words, tmp_path, capsys):
     src = tmp_path / "u.csv"
     _csv(src, header, [(0.01 * k, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0) for k in range(5)])
-    before = everything(tmp_path)
+    before = listing(tmp_path)
     rc, _, err = cli(import_imu, [src, tmp_path / "never", *extra], capsys)
     one_error_line(rc, err, "import_imu", words)
     assert "u.csv:1:" in err
-    assert everything(tmp_path) == before
+    assert listing(tmp_path) == before
 
 
 def test_import_accepts_a_utf8_byte_order_mark(tmp_path, capsys):
@@ -262,13 +252,13 @@ def test_rosbag2_outputs_named_like_ros1_bags_are_refused(sim_bag, tmp_path, cap
     take for a ROS 1 bag file); replay on such a directory says what to do in one line."""
     csv = tmp_path / "log.csv"
     csv.write_text("t,gx,gy,gz,ax,ay,az\n0.01,0,0,0,0,0,9.8\n0.02,0,0,0,0,0,9.8\n")
-    before = everything(tmp_path)
+    before = listing(tmp_path)
     for mod, args in ((simulate, ["--duration", "1", tmp_path / "x.bag"]),
                       (import_imu, [csv, tmp_path / "x.bag"]),
                       (replay, [sim_bag, "--latitude", 34, "--output", tmp_path / "x.BAG"])):
         rc, _, err = cli(mod, args, capsys)
         one_error_line(rc, err, mod.PROG, "without .bag")
-    assert everything(tmp_path) == before
+    assert listing(tmp_path) == before
     named = tmp_path / "old.bag"
     named.mkdir()
     for f in sim_bag.iterdir():
@@ -281,7 +271,7 @@ def test_rosbag2_outputs_named_like_ros1_bags_are_refused(sim_bag, tmp_path, cap
 def test_simulate_t0_outside_a_ros_stamp_is_one_line(t0, tmp_path, capsys):
     rc, _, err = cli(simulate, ["--duration", "10", "--t0", t0, tmp_path / "out"], capsys)
     one_error_line(rc, err, "simulate", "--t0 must be >= 0 s")
-    assert everything(tmp_path) == set()
+    assert listing(tmp_path) == set()
 
 
 def test_simulate_t0_at_the_edge_of_a_ros_stamp_works(tmp_path, capsys):

@@ -23,10 +23,11 @@ from sensor_msgs.msg import Imu
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
 
 from ros_helpers import NodeProcess, Probe, wait_until
+import sins_align
 from sins_align.ros import align_node
 
 RUN = os.getpid()
-CONFIG = os.path.join(os.path.dirname(align_node.__file__), "config", "align.yaml")
+CONFIG = os.path.join(os.path.dirname(sins_align.__file__), "config", "align.yaml")
 TYPE_NAMES = {v: k for k, v in vars(ParameterType).items() if k.startswith("PARAMETER_")}
 
 

@@ -28,6 +28,7 @@ from std_srvs.srv import Trigger
 
 from ros_helpers import (LATCHED, NodeProcess, Probe, diag_values, latest_diag, stamp_ns,
                          wait_until)
+import sins_align
 from sins_align.ros import align_node
 from sins_align.ros.outputs import BACKWARD_JUMP_CONFIRM, covariance_is_valid
 from sins_align.ros.params import PARAMS, config_from_params, load_params_yaml
@@ -336,7 +337,7 @@ def test_align_yaml_lists_every_parameter_with_its_default():
     example latitude; the values make a valid AlignConfig."""
     from pathlib import Path
 
-    path = Path(align_node.__file__).parent / "config" / "align.yaml"
+    path = Path(sins_align.__file__).parent / "config" / "align.yaml"
     values = load_params_yaml(path)
     assert set(values) == {p.name for p in PARAMS} | set(align_node.NODE_PARAMS)
     for p in PARAMS:
