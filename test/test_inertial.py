@@ -1,6 +1,5 @@
 """Inertial-frame alignment (sins_align.estimators.quasi_static.inertial): closed forms, accuracy
-and honesty in sway,
-and its use as the fine pass's start when the coarse pass was thrown off."""
+and honesty in sway, and its use as the fine pass's start when the coarse pass was thrown off."""
 import numpy as np
 import pytest
 

@@ -4,9 +4,8 @@ A copy of the package source is built with the venv's colcon (colcon-ros from Py
 temporary workspace (test/colcon_build.py, one build per session); the tests check the
 installed layout that ``ros2 run`` relies on (executables, config, the sample bags, the real
 data inside the package) and run every installed executable with ``--help`` (and replay on
-the installed real-data bag). A second group checks that package.xml declares an ``exec_depend``
-for every ROS
-package the code imports.
+the installed real-data bag). A second group checks that package.xml declares an ``exec_depend`` for
+every ROS package the code imports.
 """
 from __future__ import annotations
 

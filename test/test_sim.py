@@ -1,6 +1,5 @@
 """Tests for the IMU simulator (sins_align.sim.simulator): exactness, statistics, determinism,
-streaming,
-and the batch of runs (simulate_runs) equal to simulate() run by run."""
+streaming, and the batch of runs (simulate_runs) equal to simulate() run by run."""
 from __future__ import annotations
 
 import numpy as np

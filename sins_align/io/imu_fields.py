@@ -104,8 +104,7 @@ def sample_stamps_ns(t0_s: float, rate_hz: float, first: int, n: int) -> np.ndar
     """Stamps of simulated samples ``first .. first + n - 1`` (0-based), int64 ns.
 
     Sample ``k`` is stamped ``t0 + (k + 1) / rate`` (as :mod:`sins_align.sim.simulator`), computed
-    in
-    integer nanoseconds from ``t0`` so that epoch-sized ``t0`` keeps full resolution.
+    in integer nanoseconds from ``t0`` so that epoch-sized ``t0`` keeps full resolution.
     """
     k = np.arange(first + 1, first + n + 1, dtype=np.int64)
     return stamp_ns(t0_s) + np.rint(k * (NS_PER_S / float(rate_hz))).astype(np.int64)

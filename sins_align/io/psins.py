@@ -153,10 +153,9 @@ def read_psins(path: str | os.PathLike, max_samples: int | None = None) -> Psins
     ------
     ValueError
         An xz file that does not decompress, or a malformed file, with the file name and 1-based
-        line number: missing or wrong header
-        lines (each must have 6 finite numbers; ts, g and the scale factors must be positive,
-        |lat| <= 90 deg), a data line without exactly 6 fields, a non-numeric or non-finite
-        value, or no data line at all.
+        line number: missing or wrong header lines (each must have 6 finite numbers; ts, g and the
+        scale factors must be positive, |lat| <= 90 deg), a data line without exactly 6 fields, a
+        non-numeric or non-finite value, or no data line at all.
     """
     name = os.fspath(path)
     if max_samples is not None and (int(max_samples) != max_samples or max_samples < 1):

@@ -2,8 +2,7 @@
 
 Subscribes ``imu/data_raw`` (sensor_msgs/Imu, REP-145 units) and runs the numpy
 :class:`~sins_align.estimators.quasi_static.Aligner` on every sample; the node only converts
-messages
-and publishes (STYLE.md: algorithm apart from ROS). What it publishes comes from
+messages and publishes (STYLE.md: algorithm apart from ROS). What it publishes comes from
 :mod:`sins_align.ros.outputs`, the same values the bag replay writes.
 
 Topics (relative names, remap as usual)

@@ -1,9 +1,8 @@
 """Honesty harness: does the published covariance cover the true attitude error?
 
 Runs the :class:`~sins_align.estimators.quasi_static.Aligner` on simulated disturbances (the
-"disturbance
-matrix" :data:`CASES`) and compares, at every fed block, the true attitude error with the
-published standard deviation. numpy only, no ROS.
+"disturbance matrix" :data:`CASES`) and compares, at every fed block, the true attitude error with
+the published standard deviation. numpy only, no ROS.
 
 Error convention
 ----------------

@@ -11,13 +11,10 @@ Usage::
         [--seed N] [--every S] [--chunk RUNS] [--json FILE] [--csv FILE]
         [--plot FILE.png]
 
-Run ``i`` is ``sins_align.sim.simulator.simulate(..., seed=seed + i)``; the runs are stacked and
-fed to
-**one** :class:`~sins_align.estimators.quasi_static.AlignmentFilter` per curve (``C0`` of shape (N,
-3, 3)),
-so all runs share one time line (and, for the constant model, one gain schedule). Big N is
-processed in chunks of runs (``--chunk``, default: as many as fit in about 512 MB, at most
-4096).
+Run ``i`` is ``sins_align.sim.simulator.simulate(..., seed=seed + i)``; the runs are stacked and fed
+to **one** :class:`~sins_align.estimators.quasi_static.AlignmentFilter` per curve (``C0`` of shape
+(N, 3, 3)), so all runs share one time line (and, for the constant model, one gain schedule). Big N
+is processed in chunks of runs (``--chunk``, default: as many as fit in about 512 MB, at most 4096).
 
 Initial estimate
 ----------------

@@ -13,10 +13,10 @@ BAG is a rosbag2 bag (directory, .mcap or .db3; sqlite3 or mcap storage) or a RO
 Same code path as the node: parameters come from the node's YAML file (``--params``, read by
 :func:`sins_align.ros.params.load_params_yaml`; flags override it) and become an
 :class:`~sins_align.estimators.quasi_static.AlignConfig` through
-:func:`~sins_align.ros.params.config_from_params`;
-each message becomes a sample through :func:`sins_align.ros.outputs.imu_sample` and one
-:class:`~sins_align.ros.outputs.StampClock`; every published value comes from
-:mod:`sins_align.ros.outputs`. A replay therefore publishes the numbers the live node publishes.
+:func:`~sins_align.ros.params.config_from_params`; each message becomes a sample through
+:func:`sins_align.ros.outputs.imu_sample` and one :class:`~sins_align.ros.outputs.StampClock`; every
+published value comes from :mod:`sins_align.ros.outputs`. A replay therefore publishes the numbers
+the live node publishes.
 
 Outputs (each appears only when complete, nothing on Ctrl-C, SIGTERM or SIGHUP; an existing
 path is an error unless ``--force``, which replaces a previous output of the same kind)
@@ -61,11 +61,11 @@ results (test_bag_tools: attitude to 1e-9 rad, identical counts, times and flag 
   (:class:`sins_align.io.bagio.TopicBlocks`: MCAP chunks parsed and sliced with numpy, rosbags
   for other storages), decoded in bulk and fed to the estimator :data:`READ_CHUNK` samples
   per :meth:`~sins_align.estimators.quasi_static.Aligner.update` (its fast path), cut only where the
-  per-sample behaviour needs a sample alone or a boundary: a possible backward jump (the
-  node's restart), a frame_id change and, for the CSV and the plot, the 10 Hz rows. With
-  CSV/plot at 100 Hz those blocks are too short for the fast path (an order of magnitude
-  slower than summary only; values identical to the per-sample path); from ~640 Hz they
-  take it (values then equal to rounding).
+  per-sample behaviour needs a sample alone or a boundary: a possible backward jump (the node's
+  restart), a frame_id change and, for the CSV and the plot, the 10 Hz rows. With CSV/plot at 100 Hz
+  those blocks are too short for the fast path (an order of magnitude slower than summary only;
+  values identical to the per-sample path); from ~640 Hz they take it (values then equal to
+  rounding).
 """
 from __future__ import annotations
 

@@ -18,12 +18,11 @@ The bag (rosbag2, a directory OUT/ with metadata.yaml) holds
 
 Message fields come from :mod:`sins_align.io.imu_fields`, as in imu_sim_node; samples from
 :class:`sins_align.sim.simulator.ImuSimulator` (sample k stamped t0 + (k+1)/rate). Generated in
-blocks,
-so memory does not grow with the duration. The simulation settings are stored in the bag's
-``custom_data`` (keys ``sins_align.*``). The bag appears only when complete (Ctrl-C, SIGTERM
-or SIGHUP leave nothing behind); an existing OUT is refused unless ``--force`` (then a
-previous bag is replaced once the new one is complete). OUT must not end in ``.bag`` (the
-ROS 1 suffix: replay would take the directory for a ROS 1 bag file).
+blocks, so memory does not grow with the duration. The simulation settings are stored in the bag's
+``custom_data`` (keys ``sins_align.*``). The bag appears only when complete (Ctrl-C, SIGTERM or
+SIGHUP leave nothing behind); an existing OUT is refused unless ``--force`` (then a previous bag is
+replaced once the new one is complete). OUT must not end in ``.bag`` (the ROS 1 suffix: replay would
+take the directory for a ROS 1 bag file).
 """
 from __future__ import annotations
 

@@ -17,8 +17,7 @@ Usage: python test/benchmarks/bench_montecarlo.py [--repeat 3]
 Times are CPU seconds of this process (time.process_time), best of --repeat, so that
 another process on the second core disturbs them less; the tool's "filter" column is the
 filter time the tool itself reports (wall clock), also the best of --repeat. The issue's target is
-20,000,000
-sample-runs/s for the constant model; the figures printed are what this machine does.
+20,000,000 sample-runs/s for the constant model; the figures printed are what this machine does.
 """
 from __future__ import annotations
 

@@ -15,8 +15,7 @@ prints each figure beside the target of 500,000 Imu messages/s:
   schedule cache cleared) and warm, cold on the same data in an uncompressed bag (what
   ``ros2 bag record`` writes by default; the result must be identical), and the same
   forced onto the per-sample path (before); with ``--csv`` (block path cut at the 10 Hz rows) and
-  ``--output`` (the node's
-  per-sample path) for reference;
+  ``--output`` (the node's per-sample path) for reference;
 - decode only, bag on disk -> (sec, nanosec, gyro, accel) arrays of the Imu topic: rosbags'
   reader + its deserializer (before), rosbags' reader + the bulk decoder, and the numpy MCAP
   reader + bulk decoder (after); rosbags' reader alone (raw bytes) for scale;

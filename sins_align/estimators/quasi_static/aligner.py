@@ -970,13 +970,12 @@ class AlignmentFilter:
 
         The coarse pass's estimate carried back (``C0``) is checked against the inertial-frame
         alignment of the same buffer (:mod:`sins_align.estimators.quasi_static.inertial`, immune to
-        sway): when it
-        lies outside 3 sigma of that solution on some axis (the coarse pass was thrown off by
-        sway), the fine pass starts from the inertial-frame attitude instead. The initial
-        std is the configured ``fine_initial_std_deg``, widened to 3 sigma of the
-        inertial-frame solution (the buffer is used twice, so the prior stays wide); the
-        initial velocity is the sway velocity of the first sample, which the mechanization,
-        starting at zero, would otherwise carry as a constant offset.
+        sway): when it lies outside 3 sigma of that solution on some axis (the coarse pass was
+        thrown off by sway), the fine pass starts from the inertial-frame attitude instead. The
+        initial std is the configured ``fine_initial_std_deg``, widened to 3 sigma of the
+        inertial-frame solution (the buffer is used twice, so the prior stays wide); the initial
+        velocity is the sway velocity of the first sample, which the mechanization, starting at
+        zero, would otherwise carry as a constant offset.
         """
         c = self.config
         sp = c.specs
