@@ -104,16 +104,21 @@ def read_text(path: str | os.PathLike) -> str:
     not decompress (truncated, corrupted).
     """
     name = os.fspath(path)
-    with open(name, "rb") as fh:
-        xz = fh.read(len(XZ_MAGIC)) == XZ_MAGIC
-    if not xz:
-        with open(name, "r", encoding="utf-8", errors="replace") as fh:
-            return fh.read()
     try:
-        with lzma.open(name, "rt", encoding="utf-8", errors="replace") as fh:
+        with open_text(name) as fh:
             return fh.read()
     except (lzma.LZMAError, EOFError) as e:
         raise ValueError(f"{name}: not a readable xz file ({e})") from None
+
+
+def open_text(path: str | os.PathLike, encoding: str = "utf-8"):
+    """A text log opened for reading, through xz when its first bytes are the xz magic
+    number (not told by its name); undecodable bytes become U+FFFD. Reading a truncated or
+    corrupted xz file raises ``lzma.LZMAError`` or ``EOFError``."""
+    with open(path, "rb") as fh:
+        xz = fh.read(len(XZ_MAGIC)) == XZ_MAGIC
+    opener = lzma.open if xz else open
+    return opener(path, "rt", encoding=encoding, errors="replace")
 
 
 def _is_skipped(parts: list[str]) -> bool:

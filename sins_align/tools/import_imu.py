@@ -55,7 +55,7 @@ from sins_align.io.bagio import (AtomicOutput, CliError, COMPRESSIONS, Messages,
                     qos_profile)
 from sins_align.io.imu_fields import (IMU_FRAME, MAX_STAMP_S, RAW_TOPIC, ImuCovariances, ImuFields,
                          imu_covariances, split_stamp)
-from sins_align.io.psins import XZ_MAGIC
+from sins_align.io.psins import open_text
 from sins_align.core.specs import DEG, GRADES, grade_specs
 
 PROG = "import_imu"
@@ -262,7 +262,7 @@ class TextLog:
         """(line number, stamp ns, [gx, gy, gz, ax, ay, az] as given) per data line."""
         try:
             # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the header
-            fh = _open_text(self.path)
+            fh = open_text(self.path, encoding="utf-8-sig")
         except OSError as e:
             raise CliError(f"cannot read {self.name}: {e.strerror}") from None
         with fh:
@@ -360,14 +360,6 @@ def _all_numeric(fields: list[str]) -> bool:
     return True
 
 
-def _open_text(path: Path):
-    """A text log opened for reading, through xz when it starts with the xz magic bytes."""
-    with open(path, "rb") as fh:
-        xz = fh.read(len(XZ_MAGIC)) == XZ_MAGIC
-    opener = lzma.open if xz else open
-    return opener(path, "rt", encoding="utf-8-sig", errors="replace")
-
-
 def _lines(fh, name: str) -> Iterator[str]:
     """The lines of fh; a truncated or corrupt xz stream is one CliError."""
     try:
@@ -383,7 +375,7 @@ def _is_psins(path: Path) -> bool:
     if suffixes[-1:] == [".imu"] or suffixes == [".imu", ".xz"]:
         return True
     try:
-        with _open_text(path) as fh:
+        with open_text(path, encoding="utf-8-sig") as fh:
             for line in fh:
                 if line.strip():
                     return line.lstrip().startswith("%")
