@@ -1471,24 +1471,20 @@ class Aligner:
             if dt > c.gap_ratio * nom:
                 gap, dt = missing, nom
                 self.events["gap"] += 1
-                hole = rec.hole_variance(missing, nom, False, w, f)
+                hole, _, bridge = rec.bridge_errors(missing, nom, w, f, held=False)
             else:
                 # a short hole: for the rate and the specific force each, the next sample held
                 # over it or the recent mean standing in for the missing samples, whichever
                 # errs less on the recent motion (held for a smooth sway, the mean when noise
                 # dominates: holding one noisy sample multiplies its noise by the hole's
                 # length). The step then integrates the interval's mean of the two.
-                held = rec.hole_variance(missing, nom, True, w, f)
-                means = rec.hole_variance(missing, nom, False, w, f)
-                wm, fm = rec.mean_rate_force(1.0)
+                means, held, (wm, fm) = rec.bridge_errors(missing, nom, w, f)
                 hole = list(held)
                 if means[0] < held[0]:
                     w, hole[0], dR = (wm * missing + w * nom) / dt, means[0], None
                 if means[1] < held[1]:
                     f, hole[1] = (fm * missing + f * nom) / dt, means[1]
                 hole = tuple(hole)
-            if gap > 0.0:
-                bridge = rec.mean_rate_force(1.0)
             self.events["missing_samples"] += max(1, int(round(missing / nom)))
         self.t_last = t
         self.samples_used += 1
@@ -1757,15 +1753,6 @@ class _Recent:
             return a[i - m:i]
         return np.concatenate((a[self.SIZE - (m - i):], a[:i]))
 
-    def mean_rate_force(self, seconds: float = 1.0):
-        """(mean rate, mean specific force) over the last ``seconds`` (None before any
-        sample)."""
-        rows = self.last(seconds)
-        if not len(rows):
-            return None
-        m = rows[:, 1:7].mean(axis=0)
-        return m[:3], m[3:]
-
     def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
         """Mean specific force over the last ``seconds`` (None before any sample)."""
         rows = self.last(seconds)
@@ -1773,13 +1760,15 @@ class _Recent:
             return None
         return rows[:, 4:7].mean(axis=0)
 
-    def hole_variance(self, hole: float, nom: float, held: bool, w_next, f_next
-                      ) -> tuple[float, float]:
-        """(attitude rad^2, velocity (m/s)^2) per axis: the error the bridge of a hole of
-        ``hole`` seconds makes, measured on the motion of the last WINDOW seconds (the largest
-        axis counts for all three, the body axes not being the ENU ones).
+    def bridge_errors(self, hole: float, nom: float, w_next, f_next, held: bool = True):
+        """The bridges of a hole of ``hole`` seconds before the sample (w_next, f_next) and
+        their errors: ``(means, held, (w_mean, f_mean))`` with ``means`` and ``held`` the
+        (attitude rad^2, velocity (m/s)^2) variance per axis of each bridge (``held`` None
+        when not asked for) and the last second's mean rate and specific force, the means
+        bridge itself. The errors are measured on the motion of the last WINDOW seconds (the
+        largest axis counts for all three, the body axes not being the ENU ones).
 
-        The bridge is replayed at every position of the window, and the RMS of its error
+        Each bridge is replayed at every position of the window, and the RMS of its error
         there, times sqrt(2) (a tone's peak over its RMS), is one sigma:
 
         - ``held`` (m = hole / nom missing samples): the next sample's rate and specific
@@ -1797,37 +1786,40 @@ class _Recent:
         Noise counts as motion here (the bridge's error against the complete data), which
         errs on the safe side: the truth has no sensor noise in it.
         """
+        second = self.last(1.0)[:, 1:7].mean(axis=0)        # the means bridge
         rows = self.last(self.WINDOW)
         n = len(rows)
         if n < 3:
-            return 0.0, 0.0
+            return (0.0, 0.0), ((0.0, 0.0) if held else None), (second[:3], second[3:])
         T = float(rows[:, 0].sum())
         m = max(1, int(round(hole / nom)))
-        out = []
+        means, holds = [], []
         for x, nxt in ((rows[:, 1:4], w_next), (rows[:, 4:7], f_next)):
-            if held and m + 1 < n:
-                S = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
-                # at position k the held sample is x[k+m+1], the replaced ones x[k+1..k+m]
-                e = nom * (m * x[m + 1:] - (S[m + 1:n] - S[1:n - m]))
+            d = x - (x * rows[:, :1]).sum(0) / T
+            wander = np.cumsum(d * rows[:, :1], axis=0)
+            spread = float((wander.max(0) - wander.min(0)).max())
+            bound = spread * math.sqrt(1.0 + hole / T)
+            if m < n:
+                Sd = np.concatenate((np.zeros((1, 3)), wander))
+                e = Sd[m:] - Sd[:-m]
                 rms = float(np.sqrt(np.mean(e * e, axis=0)).max())
-                ramp = float(np.abs(np.asarray(nxt) - x[-1]).max()) * nom * m / 2.0
-                bound = max(math.sqrt(2.0) * rms, ramp)
-            else:
-                d = x - (x * rows[:, :1]).sum(0) / T
-                wander = np.cumsum(d * rows[:, :1], axis=0)
-                spread = float((wander.max(0) - wander.min(0)).max())
-                bound = spread * math.sqrt(1.0 + hole / T)
-                if m < n:
-                    Sd = np.concatenate((np.zeros((1, 3)), wander))
-                    e = Sd[m:] - Sd[:-m]
+                bound = min(bound, math.sqrt(2.0) * rms)
+            # at the hole itself: the samples on either side of it away from the mean of the
+            # last 1 / nom samples say the missing ones were too (a sway's peak)
+            edge = 0.5 * (np.asarray(nxt) + x[-1]) - x[-min(n, int(round(1.0 / nom))):].mean(0)
+            means.append(max(bound, float(np.abs(edge).max()) * nom * m) ** 2)
+            if held:
+                # at position k the held sample is x[k+m+1], the replaced ones x[k+1..k+m];
+                # a hole as long as the window: what the means bridge would err
+                if m + 1 < n:
+                    S = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
+                    e = nom * (m * x[m + 1:] - (S[m + 1:n] - S[1:n - m]))
                     rms = float(np.sqrt(np.mean(e * e, axis=0)).max())
-                    bound = min(bound, math.sqrt(2.0) * rms)
-                # at the hole itself: the samples on either side of it away from the last
-                # second's mean (the bridge) say the missing ones were too (a sway's peak)
-                edge = 0.5 * (np.asarray(nxt) + x[-1]) - x[-min(n, int(round(1.0 / nom))):].mean(0)
-                bound = max(bound, float(np.abs(edge).max()) * nom * m)
-            out.append(bound ** 2)
-        return out[0], out[1]
+                    ramp = float(np.abs(np.asarray(nxt) - x[-1]).max()) * nom * m / 2.0
+                    holds.append(max(math.sqrt(2.0) * rms, ramp) ** 2)
+                else:
+                    holds.append(means[-1])
+        return tuple(means), (tuple(holds) if held else None), (second[:3], second[3:])
 
 
 class _UnitsMonitor:
