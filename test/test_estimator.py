@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from sins_align.estimators.quasi_static.aligner import (JUMP_CONFIRM, REJECT_REASONS, Aligner,
-                                                        AlignConfig, AlignmentFilter)
+from sins_align.estimators.quasi_static.aligner import (FORCE_SHOCK_TIME, JUMP_CONFIRM,
+                                                        REJECT_REASONS, Aligner, AlignConfig,
+                                                        AlignmentFilter)
 from sins_align.core.kalman import nis
 from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm,
                                       so3_log)
@@ -216,7 +217,6 @@ def assert_state_equal(s1, s2):
     ("stamp_backwards", lambda t, w, f: (t - 1.0, w, f)),
     ("dt_too_small", lambda t, w, f: (t - 0.01 + 1e-5, w, f)),
     ("gravity_removed", lambda t, w, f: (t, w, f - f / np.linalg.norm(f) * 9.79)),
-    ("specific_force_out_of_range", lambda t, w, f: (t, w, 2.0 * f)),
     ("rate_too_high", lambda t, w, f: (t, w + np.array([0.0, 0.0, 2.0]), f)),
 ])
 def test_invalid_sample_rejected_and_state_untouched(reason, mutate):
@@ -232,6 +232,42 @@ def test_invalid_sample_rejected_and_state_untouched(reason, mutate):
     assert sum(al.rejected.values()) == 1
     assert_state_equal(before, state_of(al))
     assert al.update(s.t[1000:], s.gyro[1000:], s.accel[1000:]) == len(s.t) - 1000
+
+
+def test_a_shock_is_used_and_a_lasting_bad_force_rejected():
+    """A sample whose |f| is 2 g (a door slam, or a glitch of the accelerometer) is used,
+    since the attitude turns through a shock: its rate turns the attitude exactly as with a
+    tolerance that lets it through, and the velocity variance grows by the reading's
+    distance from the last second's mean force times dt. Out of range for longer than
+    FORCE_SHOCK_TIME (wrong units), the samples are rejected as specific_force_out_of_range
+    and nothing after that touches the state."""
+    s = simulate(30, 100, 34.0, specs="navigation", seed=5)
+    al, ref = make_aligner(), make_aligner(specific_force_tolerance=5.0)
+    for a in (al, ref):
+        a.update(s.t[:1005], s.gyro[:1005], s.accel[:1005])
+    assert al.filter.t_acc > 0.0                # no update at the shock sample
+    f = 2.0 * s.accel[1005]
+    mean = s.accel[905:1005].mean(axis=0)         # the last second's
+    for a in (al, ref):
+        assert a.update(s.t[1005], s.gyro[1005], f) == 1
+    assert al.events["force_out_of_range"] == 1 and not al.rejected
+    assert np.array_equal(al.dcm, ref.dcm) and np.array_equal(al.filter.v, ref.filter.v)
+    grown = np.diag(al.filter.P[0]) - np.diag(ref.filter.P[0])
+    assert np.allclose(grown[3:], np.sum((f - mean) ** 2) * 0.01 ** 2, rtol=1e-3), grown
+    assert np.allclose(grown[:3], 0.0, atol=1e-18)
+    # feet per second squared from 11 s on: a shock for 1 s, then rejected
+    bad = make_aligner()
+    n = bad.update(s.t[:1100], s.gyro[:1100], s.accel[:1100])
+    k = np.arange(1100, 1300)
+    n += bad.update(s.t[k], s.gyro[k], s.accel[k] * 3.28084)
+    shock = int(np.sum(s.t[k] - s.t[1099] <= FORCE_SHOCK_TIME))      # about 100
+    assert 99 <= shock <= 101
+    assert bad.events["force_out_of_range"] == shock
+    assert bad.rejected["specific_force_out_of_range"] == len(k) - shock
+    assert n == 1099 + shock and bad.samples_used == n
+    before = state_of(bad)
+    assert bad.update(s.t[1300], s.gyro[1300], s.accel[1300] * 3.28084) == 0
+    assert_state_equal(before, state_of(bad))
 
 
 def test_gap_is_bridged_and_time_jump_reanchors():
@@ -562,8 +598,10 @@ def test_one_block_with_every_rejection_reason_equals_one_by_one():
     # in place, on the stamp grid
     w[1000] = w[1000] * np.nan                                  # nonfinite
     f[2000] = f[2000] - 9.79 * f[2000] / np.linalg.norm(f[2000])  # gravity_removed
-    f[2500] = 2.0 * f[2500]                                     # specific_force_out_of_range
-    f[2600] = 0.4 * f[2600]                                     # specific_force_out_of_range
+    f[2500] = 2.0 * f[2500]                                     # a shock: used
+    f[2600] = 0.4 * f[2600]                                     # a shock: used
+    for k in range(2700, 2850):                                 # out of range 1.5 s:
+        f[k] = 1.6 * f[k]                                       # specific_force_out_of_range
     w[3000] = w[3000] + 2.0 * up                                # rate_too_high
     w[3400] = w[3400] * 0.0 + np.inf                            # nonfinite
     w[5000:9200] = [x / DEG for x in w[5000:9200]]              # deg/s for 42 s
@@ -585,7 +623,9 @@ def test_one_block_with_every_rejection_reason_equals_one_by_one():
     expected = set(REJECT_REASONS) - {"undecodable"}
     assert set(b.rejected) == expected, b.rejected
     assert a.rejected == b.rejected, (a.rejected, b.rejected)
-    assert b.rejected["specific_force_out_of_range"] == 2 and b.rejected["nonfinite"] == 3
+    shock = int(np.sum(t[2700:2850] - t[2699] <= FORCE_SHOCK_TIME))      # about 100
+    assert b.rejected["specific_force_out_of_range"] == 150 - shock and b.rejected["nonfinite"] == 3
+    assert b.events["force_out_of_range"] == 2 + shock
     assert b.rejected["rates_look_like_deg_per_s"] > 1000
     assert na == nb == a.samples_used == b.samples_used
     assert a.events == b.events

@@ -65,7 +65,8 @@ REASON_TEXT = {
     "gravity_removed": "|linear_acceleration| far below g: gravity was removed "
                        "(REP-145 wants specific force)",
     "specific_force_out_of_range": "|linear_acceleration| too far from g "
-                                   "(units? the platform is not quasi-static?)",
+                                   "for over 1 s (units? the platform is not "
+                                   "quasi-static?)",
     "rate_too_high": "|angular_velocity| above max_angular_rate (deg/s instead of rad/s, "
                      "or real motion)",
     "rates_look_like_deg_per_s": "gyro and accelerometer tilt disagree: angular_velocity "

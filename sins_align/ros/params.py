@@ -68,7 +68,8 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("max_angular_rate", 1.0, "Reject samples whose |angular rate| exceeds this, rad/s.",
               1e-3, 100.0, read_only=False),
     ParamSpec("specific_force_tolerance", 0.5, "Reject samples with ||f| - g| above this "
-              "fraction of g.", 0.01, 5.0, read_only=False),
+              "fraction of g for more than 1 s (shorter: a shock, used).", 0.01, 5.0,
+              read_only=False),
     ParamSpec("units_check_window", 30.0, "Window of the deg/s-versus-rad/s check, s "
               "(0 = off).", 0.0, 3600.0),
     ParamSpec("aligned_std_ratio", 1.5, "Aligned when each observable axis std <= this x its "

@@ -93,7 +93,7 @@ class Case:
 def _faults_abs(faults: dict) -> dict:
     """corrupt() keyword arguments with the times moved from 's since start' to stamps."""
     out = dict(faults)
-    for key in ("drop_bursts", "gap", "time_jump", "wild_stamp"):
+    for key in ("drop_bursts", "gap", "time_jump", "wild_stamp", "force_spikes"):
         if key in out:
             out[key] = [(T0 + a, b) for a, b in out[key]]
     if "drop_samples" in out:
@@ -330,6 +330,15 @@ def _build_cases() -> dict[str, Case]:
     cases.append(Case("door_slam_300s", 450.0, with_events(
         "car", door_slam(300.0, angle_deg=0.5, accel=5.0, duration=0.1)),
         expectations=_HONEST))
+    cases.append(Case("door_slam_hard_300s", 450.0, with_events(
+        "car", door_slam(300.0, angle_deg=2.0, accel=15.0, duration=0.2, axis=1,
+                         direction=(0.0, 1.0, 0.0))), expectations=_HONEST,
+        note="0.2 s, 15 m/s^2 north, 2 deg of pitch that returns: |f| off g by up to 1.5 g"))
+    cases.append(Case("bumps_every_20s", 450.0, with_events(
+        "car", *(door_slam(float(t), angle_deg=1.0, accel=8.0, duration=0.15, axis=k % 3,
+                           direction=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))[k % 3])
+                 for k, t in enumerate(range(40, 440, 20)))), expectations=_HONEST,
+        note="a 0.15 s, 8 m/s^2, 1 deg bump every 20 s, turning through the axes"))
     cases.append(Case("relevel_roll_2deg_300s", 600.0, with_events(
         "none", relevel(300.0, 2.0, axis=0, duration=1.5)), expectations=_HONEST,
         note="the true attitude changes for good by 2 deg of roll at 300 s"))
@@ -349,6 +358,8 @@ def _build_cases() -> dict[str, Case]:
         "car_time_jump_-2s": {"time_jump": [(150.0, -2.0)]},
         "car_wild_future": {"wild_stamp": [(150.0, 1000.0)]},
         "car_wild_past": {"wild_stamp": [(150.0, -1000.0)]},
+        "car_force_glitches": {"force_spikes": [(float(x) + 0.005, (2.0, 0.4, -1.0)[x // 30 % 3])
+                                                for x in range(30, 300, 30)]},
     }
     for name, fl in faults.items():
         cases.append(Case(name, 300.0, "car", faults=fl, expectations=_HONEST))

@@ -1241,7 +1241,8 @@ def _pairs(x, name: str) -> list[tuple[float, float]]:
 
 def corrupt(t, gyro, accel, truth=None, rng=None, drop_fraction: float = 0.0,
             drop_bursts: Sequence = (), gap: Sequence = (), time_jump: Sequence = (),
-            wild_stamp: Sequence = (), drop_samples: Sequence[float] = ()) -> Stream:
+            wild_stamp: Sequence = (), drop_samples: Sequence[float] = (),
+            force_spikes: Sequence = ()) -> Stream:
     """The stream ``t, gyro, accel`` with transport faults, as a node would receive it.
 
     Pure: the inputs are not modified. Times below are original stamps (same epoch as ``t``).
@@ -1259,6 +1260,9 @@ def corrupt(t, gyro, accel, truth=None, rng=None, drop_fraction: float = 0.0,
     wild_stamp : [(t_at, offset)] — the first received sample stamped >= t_at keeps its data
         but its stamp gets ``offset`` added (on top of any time jump); later stamps are normal.
     drop_samples : [t_at] — lose the one sample first stamped >= t_at.
+    force_spikes : [(t_at, factor)] — a glitch of the accelerometer alone: the specific force
+        of the one sample first stamped >= t_at is multiplied by ``factor`` (its rate and the
+        truth are untouched).
 
     Returns
     -------
@@ -1304,5 +1308,10 @@ def corrupt(t, gyro, accel, truth=None, rng=None, drop_fraction: float = 0.0,
         truth = {k: np.asarray(v)[idx] for k, v in truth.items()}
     elif truth is not None:
         truth = np.asarray(truth)[idx]
-    return Stream(t=stamps, gyro=gyro[idx].copy(), accel=accel[idx].copy(), index=idx,
+    accel = accel[idx].copy()
+    for ta, factor in _pairs(force_spikes, "force_spikes"):
+        k = int(np.searchsorted(t_true, ta, side="left"))
+        if k < len(idx):
+            accel[k] *= factor
+    return Stream(t=stamps, gyro=gyro[idx].copy(), accel=accel, index=idx,
                   t_true=t_true, wild=wild, truth=truth, n_in=n)

@@ -50,7 +50,8 @@ REJECT_REASONS = (
     "dt_too_small",               # 0 < dt < min_dt_ratio * nominal interval
     "time_jump",                  # dt > max_gap: time re-anchored, state kept
     "gravity_removed",            # |f| < 0.25 g: the driver removed gravity
-    "specific_force_out_of_range",  # ||f| - g| > specific_force_tolerance * g
+    "specific_force_out_of_range",  # ||f| - g| > specific_force_tolerance * g for longer
+                                  # than FORCE_SHOCK_TIME (shorter: a shock, used)
     "rate_too_high",              # |w| > max_angular_rate (deg/s sent as rad/s, or real motion)
     "rates_look_like_deg_per_s",  # gyro/accelerometer tilt mismatch: rates scaled by 57.3
     "undecodable",                # (align_node) a message whose bytes could not be decoded
@@ -65,6 +66,9 @@ JUMP_CONFIRM = 3
 HOLE_RATIO = 1.5
 #: s: with heading unobservable, the gyro bias is attitude noise reaching its size in this time
 BIAS_TRACK_TIME = 10.0
+#: s: a specific force out of range for at most this long is a shock: the sample is used, its
+#: velocity increment with a variance (event 'force_out_of_range'); longer, they are rejected
+FORCE_SHOCK_TIME = 1.0
 
 #: gain schedules of the constant model, shared between filter instances (see _cov_block)
 _SCHEDULE_CACHE: dict = {}
@@ -109,7 +113,9 @@ class AlignConfig:
         in that time.
     max_gap : s; a larger dt is a time jump: the sample is rejected and time re-anchored.
     max_angular_rate : rad/s; larger rates are rejected.
-    specific_force_tolerance : fraction of g allowed between |f| and g.
+    specific_force_tolerance : fraction of g allowed between |f| and g; beyond it for at most
+        FORCE_SHOCK_TIME the samples are a shock (used, the velocity taking the variance of
+        a possible accelerometer glitch), for longer they are rejected.
     units_check_window : s; gyro tilt vs accelerometer tilt check window (0 = off).
     aligned_std_ratio : aligned when every observable axis std <= this x limit std ...
     aligned_min_level_std_deg, aligned_min_heading_std_deg : ... or below these absolute values.
@@ -1155,6 +1161,7 @@ class Aligner:
         self.t_last: float | None = None
         self._t_prev_raw: float | None = None
         self._jump: tuple[float, int] | None = None    # pending time jump: (stamp, samples)
+        self._force_ok: float | None = None    # stamp of the last force within range
         self._dt_seen: list[float] = []
         self.nominal_dt = 1.0 / c.rate_hz if c.rate_hz else None
         self._units = _UnitsMonitor(self) if c.units_check_window > 0 else None
@@ -1356,7 +1363,7 @@ class Aligner:
                 if m == 0:
                     return 0
                 t, w, f, dts = t[:m], w[:m], f[:m], dts[:m]
-        self.t_last = self._t_prev_raw = float(t[-1])
+        self.t_last = self._t_prev_raw = self._force_ok = float(t[-1])
         self.samples_used += len(t)
         self._recent.extend(dts, w, f)
 
@@ -1393,6 +1400,14 @@ class Aligner:
             return "specific_force_out_of_range"
         return None
 
+    def _shock_reference(self, t: float) -> np.ndarray | None:
+        """The last second's mean force, against which an out-of-range reading at ``t`` is
+        measured, while the last reading within range is at most FORCE_SHOCK_TIME old; else None
+        (the sample is rejected: wrong units or a broken accelerometer, not a shock)."""
+        if self._force_ok is None or t - self._force_ok > FORCE_SHOCK_TIME:
+            return None
+        return self._recent.mean_force(1.0)
+
     def _time_jump(self, t: float) -> int:
         """A stamp more than ``max_gap`` after the last one seen: rejected. The time line is
         re-anchored only once JUMP_CONFIRM samples in a row agree on the new one; a single
@@ -1420,7 +1435,7 @@ class Aligner:
                 why = "rate_too_high"
             if why is not None:
                 return self._reject(why)
-            self.t_first = self.t_last = self._t_prev_raw = t
+            self.t_first = self.t_last = self._t_prev_raw = self._force_ok = t
             self._recent.push(0.0, w, f)
             self.events["first_sample"] += 1
             return 0
@@ -1448,6 +1463,21 @@ class Aligner:
         if nom is not None and dt < c.min_dt_ratio * nom:
             return self._reject("dt_too_small")
         why = self._static_reason(w, f)
+        force_var = 0.0
+        if why == "specific_force_out_of_range":
+            f_ref = self._shock_reference(t)
+            if f_ref is not None:
+                # a shock (a door slam, a bump) turns the attitude too, so the sample is used:
+                # a hole would lose the gyro's share of it. Its force is integrated as read,
+                # and the velocity may err by its distance from the recent mean force (a
+                # glitch of the accelerometer), which its covariance takes; a true reading
+                # errs by nothing
+                d = f - f_ref
+                force_var = float(d @ d) * dt * dt
+                why = None
+                self.events["force_out_of_range"] += 1
+        elif why is None:
+            self._force_ok = t
         if why is not None:
             return self._reject(why)
         dR = None
@@ -1486,6 +1516,8 @@ class Aligner:
                     f, hole[1] = (fm * missing + f * nom) / dt, means[1]
                 hole = tuple(hole)
             self.events["missing_samples"] += max(1, int(round(missing / nom)))
+        if force_var > 0.0:
+            hole = (hole[0], hole[1] + force_var)
         self.t_last = t
         self.samples_used += 1
         self._recent.push(dt, w_in, f_in)
