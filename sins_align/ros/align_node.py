@@ -291,8 +291,9 @@ def _make_node_class():
 
     from sins_align.io.cdr import ImuLayout
     from sins_align.estimators.quasi_static.aligner import Aligner
-    from sins_align.ros.outputs import (BackwardJump, StampClock, euler_deg, imu_output,
-                                        imu_output_values, imu_sample, node_diagnostics)
+    from sins_align.estimators.session import AlignmentSession
+    from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_output_values,
+                                        imu_sample, node_diagnostics)
 
     class AlignNode(Node):
         """ROS wrapper of :class:`Aligner`: messages in, messages out, nothing else."""
@@ -312,13 +313,9 @@ def _make_node_class():
             self.add_post_set_parameters_callback(self._after_set_parameters)
 
             self.aligner = Aligner(self.config)
+            self.session = AlignmentSession(self.aligner, on_event=self._on_event)
             self.stamp_clock = StampClock()
-            self.resets = 0
-            self.last_reset_reason = ""
             self.last_header = None
-            self._published_aligned = None
-            self._jump_back = BackwardJump()
-            self._reset_request: str | None = None
             self._rx_count = 0
             self._rate_mark = (time.monotonic(), 0)
             self._input_rate: float | None = None
@@ -470,8 +467,7 @@ def _make_node_class():
                         msg = deserialize_message(raw, Imu)
                     except Exception:            # malformed bytes: count, warn, keep going
                         self._rx_count += 1
-                        self.aligner.reject_undecodable()
-                        self._warn_rejected("undecodable")
+                        self.aligner.reject_undecodable()   # warned through _on_event
                         return
                     self._on_imu(msg)
                     return
@@ -495,20 +491,16 @@ def _make_node_class():
             self._publish_aligned()
 
         def _sample(self, t: float, w, f) -> bool:
-            """Aligner.update with one sample; True when it is to be republished (not
-            rejected)."""
+            """One sample through the session; True when it is to be republished."""
             self._rx_count += 1
-            if self._reset_request:
-                self._restart(self._reset_request)
-            al = self.aligner
-            if self._jump_back(al, t):
-                self._restart(f"input stamps jumped back by {al.t_last - t:.3f} s")
-            n_rej = sum(al.rejected.values())
-            al.update(t, w, f)
-            if sum(al.rejected.values()) == n_rej:
-                return True
-            self._warn_rejected(al.last_reject)
-            return False
+            return self.session.feed(t, w, f)
+
+        def _on_event(self, event):
+            """The Aligner's events: throttled warnings for rejections, restarts logged."""
+            if event.kind == "rejected":
+                self._warn_rejected(event.value)
+            elif event.kind == "restarted":
+                self.get_logger().warning(f"alignment restarted: {event.value}")
 
         def _warn_rejected(self, reason: str):
             now = time.monotonic()
@@ -519,32 +511,28 @@ def _make_node_class():
                     f"rejected {st[1]} sample(s): {reason} ({REASON_TEXT.get(reason, '?')})")
                 st[0], st[1] = now, 0
 
-        def _restart(self, why: str):
-            self._reset_request = None
-            self._jump_back.run = 0
-            self.aligner.reset()
-            self.resets += 1
-            self.last_reset_reason = why
-            self.get_logger().warning(f"alignment restarted: {why}")
-            self._publish_aligned()
-
         def _on_clock_jump(self, jump):
             # runs inside the clock update: only flag it, the next sample restarts
             if jump.delta.nanoseconds < 0:
-                self._reset_request = (f"ROS time jumped back by "
-                                       f"{-jump.delta.nanoseconds * 1e-9:.3f} s")
+                self.session.request_restart(
+                    f"ROS time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s")
 
         def _on_reset(self, request, response):
             elapsed = self.aligner.elapsed
-            self._restart("reset service called")
+            self.session.restart("reset service called")
+            self._publish_aligned()
             response.success = True
             response.message = f"alignment restarted (previous run: {elapsed:.1f} s of data)"
             return response
 
         # -------------------------------------------------------------- outputs
         def _publish_aligned(self, force: bool = False):
-            value = bool(self.aligner.aligned)
-            if force or value != self._published_aligned:
+            """Publish the flag when it changed since the last publication (the session's
+            flag changes of this sample, or a forced publication)."""
+            value = self.session.flag_to_publish()
+            if force and value is None:
+                value = bool(self.aligner.aligned)
+            if value is not None:
                 self.pub_aligned.publish(Bool(data=value))
                 if value and self.aligner.time_to_aligned is not None:
                     std = self.aligner.std_enu_deg
@@ -552,7 +540,6 @@ def _make_node_class():
                         f"ALIGNED after {self.aligner.time_to_aligned:.1f} s of data: "
                         f"rpy {', '.join('%.4f' % x for x in euler_deg(self.aligner))} deg, "
                         f"std E/N/U {std[0]:.4f}, {std[1]:.4f}, {std[2]:.4f} deg")
-                self._published_aligned = value
 
         def _publish_euler(self):
             if self.last_header is None or self.aligner.t_last is None:
@@ -570,7 +557,8 @@ def _make_node_class():
             self._rate_mark = (now, self._rx_count)
             al = self.aligner
             level, message, values, self._rejected_seen = node_diagnostics(
-                al, self._input_rate, self._rejected_seen, self.resets, self.last_reset_reason)
+                al, self._input_rate, self._rejected_seen, self.session.resets,
+                self.session.last_reset_reason)
             st = DiagnosticStatus(
                 level=bytes([level]), name=f"{self.get_name()}: alignment", message=message,
                 hardware_id=self.last_header[2] if self.last_header else "",

@@ -16,7 +16,6 @@ Conventions (README "Frames")
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -164,26 +163,3 @@ def imu_sample(msg, clock: StampClock) -> tuple[float, np.ndarray, np.ndarray]:
     return (clock(st.sec, st.nanosec), np.array([w.x, w.y, w.z], dtype=float),
             np.array([a.x, a.y, a.z], dtype=float))
 
-
-#: stamps this far behind the last accepted one, this many times in a row, mean the source
-#: started over (a bag played in a loop, a restarted driver): the alignment restarts
-BACKWARD_JUMP_CONFIRM = 3
-
-
-class BackwardJump:
-    """Decides when input stamps have jumped back for good (node and replay alike).
-
-    A single old stamp is just a rejected sample; ``BACKWARD_JUMP_CONFIRM`` consecutive
-    stamps more than ``max_gap`` behind the last accepted one mean the source restarted.
-    """
-
-    def __init__(self):
-        self.run = 0
-
-    def __call__(self, al: Aligner, t: float) -> bool:
-        last = al.t_last
-        if last is None or not math.isfinite(t) or t >= last - al.config.max_gap:
-            self.run = 0
-            return False
-        self.run += 1
-        return self.run >= BACKWARD_JUMP_CONFIRM

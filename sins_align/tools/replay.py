@@ -89,8 +89,9 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  read_message_chunks, signals_deferred)
 from sins_align.io.cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
 from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
+from sins_align.estimators.session import AlignmentSession
 from sins_align.ros.align_node import NODE_PARAMS
-from sins_align.ros.outputs import (BackwardJump, StampClock, euler_deg, imu_output, imu_sample,
+from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_sample,
                       node_diagnostics)
 from sins_align.ros.params import NODE_NAME, config_from_params, defaults, load_params_yaml
 from sins_align.core.rotation import attitude_error, dcm_from_quat, rpy_from_dcm, so3_exp, so3_log
@@ -218,6 +219,15 @@ class Ticker:
         self._bin = b
         return True
 
+    def due_block(self, ns: np.ndarray) -> np.ndarray:
+        """:meth:`due` for each stamp of ``ns`` (int64, in order), as a boolean array."""
+        bins = ns // self.period
+        due = np.empty(len(ns), dtype=bool)
+        due[0] = self._bin is None or bins[0] != self._bin
+        np.not_equal(bins[1:], bins[:-1], out=due[1:])
+        self._bin = int(bins[-1])
+        return due
+
 
 class TruthMatcher:
     """Matches estimates to truth samples by stamp, streaming, in bounded memory.
@@ -323,47 +333,6 @@ def _stamp_ns(msg) -> int:
     return int(st.sec) * NS + int(st.nanosec)
 
 
-# ----------------------------------------------------------------------------- block feeding
-class FlipTrackingAligner(Aligner):
-    """An :class:`Aligner` that notes where its aligned flag changes inside a block update.
-
-    The block path of :class:`ReplaySession` hands the estimator thousands of samples per
-    call, but /alignment/aligned and the summary's ``aligned_changes`` name the sample at
-    which the flag changed. While ``flips`` is a list, each change is appended as
-    ``(stamp s, new value)``: the stamp is ``t_last``, the sample being processed, both on
-    the per-sample and on the fast path (which sets it before each aligned-flag check). A
-    units-check fault (filter restarted, flag dropped) is noted at the rejection that follows
-    it, once ``t_last`` holds that sample's stamp. Estimation is untouched.
-    """
-
-    flips: list | None = None
-    _drop_pending = False
-
-    def _refresh_aligned(self):
-        before = self.aligned
-        super()._refresh_aligned()
-        if self.flips is not None and self.aligned != before:
-            self.flips.append((self.t_last, self.aligned))
-
-    def _restart_filter(self):
-        if self.flips is not None and self.aligned:
-            self._drop_pending = True
-        super()._restart_filter()
-
-    def _reject(self, reason: str) -> int:
-        out = super()._reject(reason)
-        if self._drop_pending:
-            self._drop_pending = False
-            if self.flips is not None:
-                self.flips.append((self.t_last, False))
-        return out
-
-
-#: The block path needs these Aligner internals (else replay stays on the per-sample path).
-BLOCK_PATH_AVAILABLE = all(callable(getattr(Aligner, name, None))
-                           for name in ("_refresh_aligned", "_restart_filter", "_reject"))
-
-
 # ----------------------------------------------------------------------------- the session
 class ReplaySession:
     """Runs the estimator over Imu messages and produces the node's outputs.
@@ -379,7 +348,8 @@ class ReplaySession:
             raise ValueError("the block path writes no bag and takes no truth")
         self.config = config
         self.block = block
-        self.al = FlipTrackingAligner(config) if block else Aligner(config)
+        self.al = Aligner(config)
+        self.session = AlignmentSession(self.al, record_flag_changes=block)
         self.clock = StampClock()
         self.msgs = Messages()
         self.writer = writer
@@ -393,10 +363,7 @@ class ReplaySession:
         self.last_ns: int | None = None
         self.last_header: tuple[int, int, str] | None = None   # of the last accepted sample
         self.last_frame_id = ""                                 # of the last accepted sample
-        self._aligned_pub: bool | None = None
-        self._jump_back = BackwardJump()
-        self.resets = 0
-        self.last_reset_reason = ""
+        self._aligned_pub: bool | None = None    # the block path's last flag change
         self._rejected_seen = 0
         self._diag_prev: tuple[int, int] | None = None     # (ns, samples) at the last diag
         self.aligned_changes: list[tuple[float, bool]] = []
@@ -436,12 +403,7 @@ class ReplaySession:
         published when it changes.
         """
         al = self.al
-        t, w, f = imu_sample(msg, self.clock)
-        if self._jump_back(self.al, t):
-            self._restart(f"input stamps jumped back by {al.t_last - t:.3f} s")
-        n_rej = sum(al.rejected.values())
-        al.update(t, w, f)
-        accepted = sum(al.rejected.values()) == n_rej
+        accepted = self.session.feed(*imu_sample(msg, self.clock))
         ns = _stamp_ns(msg)
         self.samples += 1
         if self.first_ns is None:
@@ -479,14 +441,13 @@ class ReplaySession:
         known from the rejection counts), and, when CSV rows or the plot are kept, after the
         first sample of every ``euler_period`` of data time (the row is taken there, after
         that sample, as :meth:`on_imu` does). Changes of the aligned flag are placed at their
-        sample by :class:`FlipTrackingAligner`.
+        sample from the stamps of the session's flag changes.
         """
         if not self.block:
             raise RuntimeError("on_imu_block needs a session made with block=True")
         n = len(batch)
         if n == 0:
             return
-        al = self.al
         sec, nsec = batch.sec, batch.nanosec
         if self.clock.epoch is None:
             self.clock(int(sec[0]), int(nsec[0]))
@@ -498,22 +459,7 @@ class ReplaySession:
             self.first_ns = int(ns[0])
         cut = np.zeros(n + 1, dtype=bool)
         cut[0] = cut[n] = True
-        # t_last never exceeds the largest stamp seen: a sample not below that bound minus
-        # max_gap cannot be a backward jump; the others go alone through the BackwardJump check
-        finite = np.isfinite(t)
-        tl = al.t_last
-        bound = np.maximum.accumulate(np.concatenate((
-            [-np.inf if tl is None else tl], np.where(finite[:-1], t[:-1], -np.inf))))
-        back = finite & (t < bound - self.config.max_gap)
-        bi = np.flatnonzero(back)
-        cut[bi] = True
-        cut[bi + 1] = True
-        # the data-time ticks of Ticker.due (first sample of each period bin)
-        bins = ns // self.euler_tick.period
-        due = np.empty(n, dtype=bool)
-        due[0] = self.euler_tick._bin is None or bins[0] != self.euler_tick._bin
-        np.not_equal(bins[1:], bins[:-1], out=due[1:])
-        self.euler_tick._bin = int(bins[-1])
+        due = self.euler_tick.due_block(ns)
         rows = self._csv is not None or self.series is not None
         if rows:
             cut[np.flatnonzero(due) + 1] = True
@@ -524,23 +470,12 @@ class ReplaySession:
                     cut[i] = True
         bounds = np.flatnonzero(cut).tolist()
         for a, b in zip(bounds, bounds[1:]):
-            if back[a]:
-                if self._jump_back(al, float(t[a])):
-                    self._restart(f"input stamps jumped back by {al.t_last - float(t[a]):.3f} s")
-            else:
-                self._jump_back.run = 0
-            n_rej = sum(al.rejected.values())
-            before = al.aligned
-            al.flips = flips = []
-            try:
-                al.update(t[a:b], w[a:b], f[a:b])
-            finally:
-                al.flips = None
-            if sum(al.rejected.values()) - n_rej < b - a:
+            before = self.al.aligned
+            if self.session.feed_block(t[a:b], w[a:b], f[a:b]):
                 self.last_frame_id = frames[a]
             self.samples += b - a
             self.last_ns = int(ns[b - 1])
-            self._publish_flips(flips, before, t[a:b], ns[a:b])
+            self._publish_flips(self.session.take_flag_changes(), before, t[a:b], ns[a:b])
             if rows and due[b - 1]:
                 self._row(self.last_ns)
 
@@ -572,13 +507,6 @@ class ReplaySession:
         if self.last_ns is not None:
             self._take(self.truth.resolve(self.last_ns))
 
-    # -- node behaviour (align_node._restart) ---------------------------------------------
-    def _restart(self, why: str):
-        self._jump_back.run = 0
-        self.al.reset()
-        self.resets += 1
-        self.last_reset_reason = why
-
     # -- node outputs ----------------------------------------------------------------------
     def _publish_imu(self, msg, ns: int):
         m = self.msgs
@@ -590,13 +518,12 @@ class ReplaySession:
         self.writer.write(self.c_imu, ns, m.serialize(imu))
 
     def _publish_aligned(self, ns: int):
-        al = self.al
-        if al.aligned == self._aligned_pub:
+        value = self.session.flag_to_publish()
+        if value is None:
             return
-        self._aligned_pub = al.aligned
-        self.aligned_changes.append(((ns - self.first_ns) / NS, al.aligned))
+        self.aligned_changes.append(((ns - self.first_ns) / NS, value))
         if self.writer is not None:
-            self.writer.write(self.c_aligned, ns, self.msgs.serialize(self.msgs.bool(al.aligned)))
+            self.writer.write(self.c_aligned, ns, self.msgs.serialize(self.msgs.bool(value)))
 
     def _publish_diagnostics(self, ns: int):
         """align_node's diagnostics, with data time for the rate and the stamp."""
@@ -606,7 +533,7 @@ class ReplaySession:
             rate = (self.samples - self._diag_prev[1]) / ((ns - self._diag_prev[0]) / NS)
         self._diag_prev = (ns, self.samples)
         level, text, values, self._rejected_seen = node_diagnostics(
-            al, rate, self._rejected_seen, self.resets, self.last_reset_reason)
+            al, rate, self._rejected_seen, self.session.resets, self.session.last_reset_reason)
         frame = self.last_header[2] if self.last_header else ""
         sec, nsec = divmod(ns, NS)
         arr = m.diagnostic_array(m.header(sec, nsec, frame),
@@ -677,7 +604,7 @@ class ReplaySession:
             "aligned": al.aligned,
             "time_to_aligned_s": al.time_to_aligned,
             "status": al.status,
-            "resets": self.resets,
+            "resets": self.session.resets,
             "stage": al.stage,
             "heading_observable": al.heading_observable,
             "aligned_changes": [{"t_s": t, "aligned": a} for t, a in self.aligned_changes],
@@ -861,7 +788,7 @@ def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = N
         topic, conns = select_imu_connections(reader, topic, bag)
         truth_conns = select_truth_connections(reader, truth_topic, bag) if truth_topic else []
         layout = reader_imu_layout(reader)
-        block = (BLOCK_PATH_AVAILABLE and not per_sample and output is None and not truth_conns
+        block = (not per_sample and output is None and not truth_conns
                  and layout is not None)
         if output is not None:
             writer = open_writer(Path(output), "mcap", "zstd")

@@ -7,7 +7,9 @@
 - :mod:`~sins_align.estimators.quasi_static.inertial`: inertial-frame (sway-immune) alignment
   the fine pass can start from.
 """
-from sins_align.estimators.quasi_static.aligner import (REJECT_REASONS, STATES, AlignConfig,
-                                                         Aligner, AlignmentFilter)
+from sins_align.estimators.quasi_static.aligner import (EVENT_KINDS, REJECT_REASONS, STATES,
+                                                         AlignConfig, Aligner, AlignmentEvent,
+                                                         AlignmentFilter)
 
-__all__ = ["Aligner", "AlignConfig", "AlignmentFilter", "REJECT_REASONS", "STATES"]
+__all__ = ["Aligner", "AlignConfig", "AlignmentEvent", "AlignmentFilter", "EVENT_KINDS",
+           "REJECT_REASONS", "STATES"]

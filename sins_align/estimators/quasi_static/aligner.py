@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -79,6 +80,22 @@ _PIECE_SAMPLE_RUNS = 1 << 18
 _THIRDS = np.full(3, 1.0 / 3.0)     # NIS per degree of freedom
 
 STATES = ("waiting", "aligning", "aligned", "disturbed", "fault")
+
+#: What an Aligner tells its subscribers (:meth:`Aligner.subscribe`).
+EVENT_KINDS = (
+    "aligned",      # the aligned flag changed; value: the new flag
+    "restarted",    # the alignment started over; value: why
+    "rejected",     # a sample was rejected; value: the reason (REJECT_REASONS)
+)
+
+
+@dataclass(frozen=True)
+class AlignmentEvent:
+    """One event of an :class:`Aligner`: ``kind`` (EVENT_KINDS), ``stamp`` (s, of the sample
+    being processed; None when there is none) and ``value`` (the new flag, or a reason)."""
+    kind: str
+    stamp: float | None
+    value: bool | str
 
 
 @dataclass(frozen=True)
@@ -1147,14 +1164,33 @@ class Aligner:
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
-    def reset(self):
+    def subscribe(self, callback: Callable[[AlignmentEvent], None]) -> None:
+        """Call ``callback(event)`` for every :class:`AlignmentEvent` from now on (the
+        aligned flag changed, a restart, a rejected sample), in the order they happen, on
+        the per-sample and the block path alike. Subscriptions survive :meth:`reset`."""
+        self._listeners.append(callback)
+
+    def _emit(self, kind: str, stamp: float | None, value) -> None:
+        if self._listeners:
+            event = AlignmentEvent(kind, stamp, value)
+            for callback in self._listeners:
+                callback(event)
+
+    def reset(self, reason: str = "reset"):
         """Forget the alignment and the time line (``samples_used`` counts this run's
-        samples); keep the configuration and the counters ``rejected`` and ``events``, which
-        count over the Aligner's life: a restart never wipes them."""
+        samples); keep the configuration, the subscriptions and the counters ``rejected``
+        and ``events``, which count over the Aligner's life: a restart never wipes them.
+        Subscribers are told (event 'restarted' with ``reason``; 'aligned' false first when
+        it was true)."""
         c = self.config
         if not hasattr(self, "rejected"):
             self.rejected: Counter = Counter()
             self.events: Counter = Counter()
+            self._listeners: list[Callable[[AlignmentEvent], None]] = []
+            self._aligned = False
+        elif self._aligned:
+            self._aligned = False
+            self._emit("aligned", self.t_last, False)
         self.samples_used = 0
         self.last_reject: str | None = None
         self.t_first: float | None = None
@@ -1168,13 +1204,18 @@ class Aligner:
         self._recent = _Recent()
         self.units_suspect = False
         self._restart_filter()
+        self._emit("restarted", None, reason)
 
-    def _restart_filter(self):
+    def _restart_filter(self, stamp: float | None = None):
+        """A new filter from the initial attitude (the time line is kept); the flag drops
+        (event 'aligned' at ``stamp`` when it was true)."""
         c = self.config
         C0 = np.eye(3) if c.initial_rpy_deg is None else dcm_from_rpy(
             np.array(c.initial_rpy_deg) * DEG)
         self.filter = AlignmentFilter(c, C0[None])
-        self._aligned = False
+        if self._aligned:
+            self._aligned = False
+            self._emit("aligned", stamp, False)
         self.time_to_aligned: float | None = None
 
     # ------------------------------------------------------------------ results
@@ -1380,9 +1421,10 @@ class Aligner:
         self._refresh_aligned()
         return len(t)
 
-    def _reject(self, reason: str) -> int:
+    def _reject(self, reason: str, stamp: float | None = None) -> int:
         self.rejected[reason] += 1
         self.last_reject = reason
+        self._emit("rejected", stamp, reason)
         return 0
 
     def reject_undecodable(self):
@@ -1399,6 +1441,16 @@ class Aligner:
         if abs(fn - self.g) > c.specific_force_tolerance * self.g:
             return "specific_force_out_of_range"
         return None
+
+    def _units_verdict(self, bad: bool, t: float) -> None:
+        """A units-check window closed at the sample stamped ``t``: rates flagged as deg/s
+        restart the filter (status 'fault' until a window clears them)."""
+        if bad and not self.units_suspect:
+            self.units_suspect = True
+            self._restart_filter(t)
+            self._emit("restarted", t, "rates_look_like_deg_per_s")
+        elif not bad:
+            self.units_suspect = False
 
     def _shock_reference(self, t: float) -> np.ndarray | None:
         """The last second's mean force, against which an out-of-range reading at ``t`` is
@@ -1422,28 +1474,28 @@ class Aligner:
             self._jump = None
             self.t_last = self._t_prev_raw = t
             self.events["time_jump"] += 1
-        return self._reject("time_jump")
+        return self._reject("time_jump", t)
 
     def _sample(self, t: float, w: np.ndarray, f: np.ndarray) -> int:
         c = self.config
         if not (math.isfinite(t) and np.isfinite(w).all() and np.isfinite(f).all()):
-            return self._reject("nonfinite")
+            return self._reject("nonfinite", t)
         if self.t_last is None:
             # the first accepted sample anchors time; it has no interval to integrate over
             why = self._static_reason(w, f)
             if why is None and math.sqrt(float(w @ w)) > c.max_angular_rate:
                 why = "rate_too_high"
             if why is not None:
-                return self._reject(why)
+                return self._reject(why, t)
             self.t_first = self.t_last = self._t_prev_raw = self._force_ok = t
             self._recent.push(0.0, w, f)
             self.events["first_sample"] += 1
             return 0
         dt = t - self.t_last
         if dt == 0.0:
-            return self._reject("duplicate_stamp")
+            return self._reject("duplicate_stamp", t)
         if dt < 0.0:
-            return self._reject("stamp_backwards")
+            return self._reject("stamp_backwards", t)
         raw_dt = t - self._t_prev_raw
         if raw_dt > c.max_gap:
             return self._time_jump(t)
@@ -1461,7 +1513,7 @@ class Aligner:
                 self.nominal_dt = float(statistics.median(self._dt_seen))
         nom = self.nominal_dt
         if nom is not None and dt < c.min_dt_ratio * nom:
-            return self._reject("dt_too_small")
+            return self._reject("dt_too_small", t)
         why = self._static_reason(w, f)
         force_var = 0.0
         if why == "specific_force_out_of_range":
@@ -1479,15 +1531,18 @@ class Aligner:
         elif why is None:
             self._force_ok = t
         if why is not None:
-            return self._reject(why)
+            return self._reject(why, t)
         dR = None
         if self._units is not None:
             dR = self._units.add(raw_dt, w, f)
+            verdict, self._units.verdict = self._units.verdict, None
+            if verdict is not None:
+                self._units_verdict(verdict, t)
             if self.units_suspect:
                 self.t_last = t
-                return self._reject("rates_look_like_deg_per_s")
+                return self._reject("rates_look_like_deg_per_s", t)
         if math.sqrt(float(w @ w)) > c.max_angular_rate:
-            return self._reject("rate_too_high")
+            return self._reject("rate_too_high", t)
         gap, hole, bridge = 0.0, (0.0, 0.0), None
         w_in, f_in = w, f
         if nom is not None and dt > HOLE_RATIO * nom:
@@ -1574,6 +1629,7 @@ class Aligner:
             self._aligned = now
             if now and self.time_to_aligned is None:
                 self.time_to_aligned = self.elapsed
+            self._emit("aligned", self.t_last, now)
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict:
@@ -1891,6 +1947,7 @@ class _UnitsMonitor:
         self.bins = int(math.ceil(self.window)) + 1
         self.last_mismatch_deg = None       # scatter of u of the last judged window, deg
         self.last_limit_deg = None          # and the limit it was compared with, deg
+        self.verdict: bool | None = None    # of the window add() closed; the Aligner takes it
         self._start()
 
     def _start(self):
@@ -1985,7 +2042,8 @@ class _UnitsMonitor:
 
     def add(self, dt, w, f):
         """One sample; returns exp(w dt), which the filter can reuse (None if skipped: a
-        gap or a time jump, which also discards the window)."""
+        gap or a time jump, which also discards the window). A window closing here leaves
+        its verdict in :attr:`verdict` (True: the rates look like deg/s)."""
         if not 0.0 < dt <= self._gap(None):
             self._start()
             return None
@@ -2001,11 +2059,7 @@ class _UnitsMonitor:
             verdict = self._verdict(self.B, self.acc, self.T)
             if verdict is not None:
                 bad, su, limit = verdict
-                if bad and not self.al.units_suspect:
-                    self.al.units_suspect = True
-                    self.al._restart_filter()
-                elif not bad:
-                    self.al.units_suspect = False
+                self.verdict = bool(bad)
                 self.last_mismatch_deg, self.last_limit_deg = su / DEG, limit / DEG
             self._start()
         return dR
