@@ -109,10 +109,10 @@ def test_cold_run_takes_every_update_from_the_batched_schedule(monkeypatch, chun
     """With uniform stamps, the schedule computed ahead for each block
     (_prefetch_schedule) holds every update the interval loop asks for: no update is
     computed step by step, in one call or in blocks cut anywhere (as replay feeds them)."""
-    from sins_align.estimators.quasi_static import aligner as estimator
+    from sins_align.estimators.quasi_static.schedule import SHARED_SCHEDULES
     s = simulate(200, 100, 34.0, rpy_deg=(1, -2, 40), seed=4)
     C0 = (s.C0 @ dcm_from_rpy(np.array([89, 89, 179]) * DEG).T)[None]
-    estimator._SCHEDULE_CACHE.clear()
+    SHARED_SCHEDULES.clear()
     calls = []
     gain = AlignmentFilter._gain
     monkeypatch.setattr(AlignmentFilter, "_gain",

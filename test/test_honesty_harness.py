@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sins_align.estimators.quasi_static.aligner import Aligner
-from sins_align.sim.honesty import (CASES, T0, Case, _faults_abs, check_expectations, run_case,
+from sins_align.sim.honesty import (CASES, T0, Case, fault_stamps, check_expectations, run_case,
                                 select_cases)
 from sins_align.core.rotation import dcm_from_rpy, so3_exp, so3_log
 from sins_align.sim.simulator import corrupt, relevel, simulate, with_events
@@ -73,7 +73,7 @@ def _oracle_factory(case: Case, seed: int):
     """An Aligner whose published attitude is the truth at its last accepted sample, found by
     stamp in an independent copy of the stream the harness builds."""
     sim = simulate(case.duration, rpy_deg=case.rpy_deg, sway=case.sway, seed=seed, t0=T0)
-    s = corrupt(sim.t, sim.gyro, sim.accel, sim.C_true, rng=seed, **_faults_abs(case.faults))
+    s = corrupt(sim.t, sim.gyro, sim.accel, sim.C_true, rng=seed, **fault_stamps(case.faults))
     by_stamp = {float(t): C for t, C in zip(s.t, s.truth)}
 
     class Oracle(Aligner):

@@ -290,7 +290,7 @@ def _make_node_class():
     from std_srvs.srv import Trigger
 
     from sins_align.io.cdr import ImuLayout
-    from sins_align.estimators.quasi_static.aligner import Aligner
+    from sins_align.estimators.quasi_static import Aligner
     from sins_align.estimators.session import AlignmentSession
     from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_output_values,
                                         imu_sample, node_diagnostics)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sins_align.estimators.quasi_static.aligner import Aligner
+from sins_align.estimators.quasi_static import Aligner
 
 #: diagnostic_msgs/DiagnosticStatus levels
 OK, WARN, ERROR, STALE = 0, 1, 2, 3

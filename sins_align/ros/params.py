@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sins_align.estimators.quasi_static.aligner import AlignConfig
+from sins_align.estimators.quasi_static import AlignConfig
 from sins_align.core.models import MODELS
 from sins_align.core.specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
 

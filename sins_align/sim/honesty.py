@@ -36,7 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
+from sins_align.estimators.quasi_static import AlignConfig, Aligner
 from sins_align.core.rotation import so3_exp, so3_log
 from sins_align.sim.simulator import (SwayProfile, combine, corrupt, door_slam, relevel, shove,
                                       simulate, tone, with_events)
@@ -90,7 +90,7 @@ class Case:
     note: str = ""
 
 
-def _faults_abs(faults: dict) -> dict:
+def fault_stamps(faults: dict) -> dict:
     """corrupt() keyword arguments with the times moved from 's since start' to stamps."""
     out = dict(faults)
     for key in ("drop_bursts", "gap", "time_jump", "wild_stamp", "force_spikes"):
@@ -169,7 +169,7 @@ def run_case(case: Case | str, seed: int = 0,
     wall = time.perf_counter()
     r = simulate(case.duration, rate=RATE_HZ, lat_deg=LATITUDE_DEG, rpy_deg=case.rpy_deg,
                  specs=case.specs, sway=case.sway, seed=seed, t0=T0)
-    s = corrupt(r.t, r.gyro, r.accel, r.C_true, rng=seed, **_faults_abs(case.faults))
+    s = corrupt(r.t, r.gyro, r.accel, r.C_true, rng=seed, **fault_stamps(case.faults))
     C_true = s.truth
     al = aligner_factory(AlignConfig(latitude_deg=LATITUDE_DEG, specs=case.specs,
                                      initial_rpy_deg=case.initial_rpy_deg))

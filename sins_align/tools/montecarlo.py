@@ -62,7 +62,7 @@ import numpy as np
 from sins_align.io.bagio import AtomicOutput, CliError, check_new_output, cli_main
 from sins_align.tools.simulate import specs_from_args
 from sins_align.core.earth import gravity
-from sins_align.estimators.quasi_static.aligner import AlignConfig, AlignmentFilter
+from sins_align.estimators.quasi_static import AlignConfig, AlignmentFilter
 from sins_align.core.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
 from sins_align.core.specs import (DEG, DPH, DPSH, GRADES, UG, UG_PSHZ, SensorSpecs, grade_specs,
                                    limit_error, limit_std)

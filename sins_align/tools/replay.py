@@ -88,7 +88,7 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  one_line, open_reader, open_writer, qos_profile,
                                  read_message_chunks, signals_deferred)
 from sins_align.io.cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
-from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
+from sins_align.estimators.quasi_static import AlignConfig, Aligner
 from sins_align.estimators.session import AlignmentSession
 from sins_align.ros.align_node import NODE_PARAMS
 from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_sample,

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from sins_align.estimators.quasi_static import aligner as estimator
+from sins_align.estimators.quasi_static.schedule import SHARED_SCHEDULES
 from sins_align.estimators.quasi_static.aligner import Aligner, AlignConfig, AlignmentFilter
 from sins_align.core.rotation import dcm_from_rpy
 from sins_align.sim.simulator import simulate
@@ -73,12 +73,12 @@ def main(argv=None):
             continue
         R = a.repeat
         for temp in ("cold", "warm"):
-            clear = estimator._SCHEDULE_CACHE.clear if temp == "cold" else None
+            clear = SHARED_SCHEDULES.clear if temp == "cold" else None
             row(model, f"AlignmentFilter.run_fast ({temp})",
                 rate_of(lambda: AlignmentFilter(cfg, C0).run_fast(0.01, s.gyro, s.accel), n,
                         R, clear), tgt)
         for temp in ("cold", "warm"):
-            clear = estimator._SCHEDULE_CACHE.clear if temp == "cold" else None
+            clear = SHARED_SCHEDULES.clear if temp == "cold" else None
             row(model, f"Aligner.update(array) ({temp})",
                 rate_of(lambda: Aligner(cfg).update(s.t, s.gyro, s.accel), n, R, clear), tgt)
     m = a.runs

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sins_align.estimators.quasi_static import aligner as estimator
+from sins_align.estimators.quasi_static.schedule import SHARED_SCHEDULES
 
 from sins_align.tools import replay
 
@@ -102,7 +102,7 @@ def main() -> int:
             per_sample["s"], _ = replay.replay(bag, config, per_sample=True, progress=False)
 
         def run_replay_cold():
-            estimator._SCHEDULE_CACHE.clear()          # as in a fresh process
+            SHARED_SCHEDULES.clear()          # as in a fresh process
             run_replay()
 
         run_replay()                                   # imports, message types
@@ -114,7 +114,7 @@ def main() -> int:
                        "--seed", "1", str(plain)])
 
         def run_plain_cold():
-            estimator._SCHEDULE_CACHE.clear()
+            SHARED_SCHEDULES.clear()
             k[0] += 1
             js = d / f"plain{k[0]}.json"
             assert replay.main([str(plain), "--latitude", "34", "--summary-json", str(js),
@@ -197,7 +197,7 @@ def main() -> int:
         t = np.array([clock(s, ns) for s, ns in zip(sec.tolist(), nsec.tolist())])
 
         def estimator_blocks():
-            estimator._SCHEDULE_CACHE.clear()
+            SHARED_SCHEDULES.clear()
             al = Aligner(config)
             for j in range(0, n, replay.READ_CHUNK):
                 al.update(t[j:j + replay.READ_CHUNK], gyro[j:j + replay.READ_CHUNK],

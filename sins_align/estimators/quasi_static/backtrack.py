@@ -1,0 +1,302 @@
+"""The backtrack and the fine pass's tuning (a part of
+:class:`~sins_align.estimators.quasi_static.filter.AlignmentFilter`).
+
+At ``backtrack_time`` the coarse estimate is carried back to the first sample through the
+buffered gyro data (:class:`SampleBuffer`), and the fine pass starts over the buffer: from
+the inertial-frame alignment or the carried-back estimate, with its update period and
+measurement noise measured from the data (the sway's velocity; the period lengthened until
+the differenced interval means look white), and its steady-state std for the aligned
+criterion.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sins_align.core.kalman import discretize, joseph_update
+from sins_align.core.models import (averaged_measurement_matrix,
+                                    measurement_matrix,
+                                    system_matrix)
+from sins_align.core.preint import open_loop_velocity, start_frame_increments
+from sins_align.core.rotation import so3_exp, so3_log
+from sins_align.core.specs import DEG
+from sins_align.estimators.quasi_static.fast_path import FAST_MIN_BLOCK
+from sins_align.estimators.quasi_static.inertial import inertial_alignment
+
+
+class Backtrack:
+    """The backtrack and the fine-pass tuning (see the module docstring)."""
+
+    def backtrack(self):
+        """Carry the estimate back to the first sample and rerun the buffer in the fine pass.
+
+        Without feedback the damped mechanization gives ``C(T) = exp(-W T) C(0) B(T)`` where
+        ``B`` is the body rotation integrated from the gyro, so the current estimate implies
+        ``C(0) = exp(W T) C(T) B(T)^T`` exactly, whatever the corrections were.
+        """
+        c = self.config
+        C0 = so3_exp(self.w_ie * self.t_int) @ self.C @ np.swapaxes(self._B, -1, -2)
+        dt, w, f, gap, hole, bridge = self._buf.arrays()
+        # the analyses of the buffer see a gap as one sample of its bridging means (the time
+        # line stays whole: Earth rate and gravity are matched against time)
+        adt, aw, af = bridged(dt, w, f, gap, bridge)
+        u = start_frame_increments(adt, aw, af)     # shared by the two analyses
+        C0, std0, v0 = self._fine_start(C0, adt, aw, af, u)
+        r_std, self.fine_period = self._sway_velocity_std(C0, adt, aw, af, u)
+        self.fine_R_std = r_std
+        R = np.zeros((self.n, 3, 3))
+        R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
+        self._start_pass(C0, fine=True, std=std0, R=R, v0=v0)
+        self._steady_start = (self.P.copy(), self.S.copy())
+        self.stage = "fine"
+        self.backtracked = True
+        self._buf = None
+        # runs of regular samples (no gap or hole, interval within 15 % of the median) take
+        # the fast path, the others go one by one: the callback never stalls on a few odd
+        # stamps (without the fast path, everything goes one by one)
+        pieces = [(0, len(dt), False)]
+        if self.fast_backtrack and c.model == "constant" and len(dt):
+            med = float(np.median(dt))
+            odd = (gap > 0.0) | (hole > 0.0).any(axis=1) | (np.abs(dt - med) > 0.15 * med)
+            pieces = runs_of(odd, FAST_MIN_BLOCK)
+        for a, b, regular in pieces:
+            if not regular:
+                for k in range(a, b):
+                    self._advance(float(dt[k]), w[k], f[k], float(gap[k]), None,
+                                  tuple(hole[k]),
+                                  (bridge[k, :3], bridge[k, 3:]) if gap[k] > 0.0 else None)
+                continue
+            d = dt[a:b]
+            mean = float(d.mean())
+            uniform = np.all(np.abs(d - mean) <= 1e-9 * mean)
+            self._advance_block(mean if uniform else d, w[a:b], f[a:b])
+
+    def _fine_start(self, C0, dt, w, f, u=None):
+        """Where the fine pass starts: attitude (N, 3, 3), initial std (N, 6), velocity (N, 3).
+
+        The coarse pass's estimate carried back (``C0``) is checked against the inertial-frame
+        alignment of the same buffer (:mod:`sins_align.estimators.quasi_static.inertial`, immune to
+        sway): when it lies outside 3 sigma of that solution on some axis (the coarse pass was
+        thrown off by sway), the fine pass starts from the inertial-frame attitude instead. The
+        initial std is the configured ``fine_initial_std_deg``, widened to 3 sigma of the
+        inertial-frame solution (the buffer is used twice, so the prior stays wide); the initial
+        velocity is the sway velocity of the first sample, which the mechanization, starting at
+        zero, would otherwise carry as a constant offset.
+        """
+        c = self.config
+        sp = c.specs
+        fit = inertial_alignment(dt, w, f, self.w_ie, self.g_n, self.limit_std,
+                                 sp.gyro_arw, sp.accel_vrw, increments=u)
+        lv, hd = (a * DEG for a in c.fine_initial_std_deg)
+        cap = max(hd, c.coarse_initial_std_deg[1] * DEG)
+        att = np.minimum(np.maximum(np.array([lv, lv, hd]), 3.0 * fit.std), cap)
+        diff = np.abs(so3_log(fit.C0 @ np.swapaxes(C0, -1, -2)))
+        off = np.any(diff > 3.0 * fit.std, axis=1)
+        self.started_inertial = off
+        C0 = np.where(off[:, None, None], fit.C0, C0)
+        vel = np.maximum(c.initial_velocity_std, 3.0 * fit.v0_std)
+        return C0, np.concatenate([att, vel], axis=1), fit.v0
+
+    def force_block_means(self, k: int, most: int = 10) -> np.ndarray | None:
+        """Before the backtrack: the mean specific force (m, N, 3) of the last ``most``
+        complete blocks of ``k`` buffered samples (None once the buffer is gone)."""
+        if self._buf is None:
+            return None
+        return self._buf.force_means(k, most)
+
+    @property
+    def steady_std(self) -> np.ndarray | None:
+        """Attitude std (N, 3), rad, the fine pass tends to (None before the backtrack);
+        computed on first use."""
+        if self._steady_std is None and self._steady_start is not None:
+            self._steady_std = self._steady_state_std()
+        return self._steady_std
+
+    def _steady_state_std(self, horizon: float = 1800.0) -> np.ndarray:
+        """Attitude std (N, 3), rad, the fine pass tends to on a static base: the covariance
+        recursion alone (no data), iterated over ``horizon`` seconds of fine updates.
+
+        For navigation and tactical grades this is the limit accuracy; for MEMS gyros the
+        gyro bias adds a tracking lag to the level axes that no filter without bias states
+        can remove, so the aligned flag compares against whichever is larger.
+        """
+        T = self.fine_period
+        F = self._Fconst if self.config.model == "constant" else system_matrix(
+            self.config.model, self.w_ie, self.g_n, -self.g_n, np.zeros(3))
+        Phi, Qd = discretize(F, self.Qc, T)
+        H = averaged_measurement_matrix(measurement_matrix(self.config.model, np.zeros(3)), F, T)
+        P, S = self._steady_start
+        key = ("steady", self._cfg_key, P.tobytes(), S.tobytes(), self.R.tobytes(), T)
+        hit = self.schedules.get(key)
+        if hit is not None:
+            return hit
+        Gd = self.Gamma * T
+        prev = None
+        PhiT, R = Phi.T, self.R
+        if P.shape[0] == S.shape[0] == R.shape[0] == 1:      # one covariance: 2-D arrays
+            P, S, R = P[0], S[0], R[0]
+        for i in range(int(horizon / T)):
+            P = Phi @ P @ PhiT + Qd                           # the fine pass's recursion
+            S = Phi @ S + Gd
+            P, K, _ = joseph_update(P, H, R)
+            S = S - K @ (H @ S)
+            if i % 25 == 24:                      # stop once the attitude std has settled
+                d = np.diagonal(self._with_bias(P, S), axis1=-2, axis2=-1)[..., :3]
+                if prev is not None and np.all(np.abs(d - prev) <= 1e-6 * d):
+                    break
+                prev = d
+        P, S = P.reshape(-1, 6, 6), S.reshape(-1, 6, 6)
+        tot = self._with_bias(P, S)
+        out = np.broadcast_to(np.sqrt(np.diagonal(tot[:, :3, :3], axis1=1, axis2=2)),
+                              (self.n, 3))
+        self.schedules.put(key, out)
+        return out
+
+    def _sway_velocity_std(self, C0, dt, w, f, u=None):
+        """Measure the sway velocity; pick the fine update period and its noise.
+
+        Open-loop damped mechanization from ``C0`` over the buffer; a cubic per axis removes
+        the drift due to the remaining attitude error; what is left is sway velocity plus
+        VRW wander. For each candidate period (``fine_update_period`` times 1, 2, 5, 10, 20)
+        the interval means are differenced; the first period whose differences look white
+        (lag-1 autocorrelation below 0.4 on every axis: slow ship-like sway is averaged over)
+        is used, with half their mean square as the measurement noise (per run, per axis),
+        floored by the VRW term and ``fine_min_velocity_noise``.
+
+        Returns
+        -------
+        r_std : ndarray (N, 3), m/s ; period : float, s
+        """
+        c = self.config
+        vs = open_loop_velocity(dt, w, f, C0, self.w_ie, self.g_n, increments=u)
+        t = np.cumsum(dt)
+        tn = (t - t.mean()) / (t.std() + 1e-12)
+        A = np.vander(tn, 4)
+        Y = vs.reshape(len(dt), -1)
+        coef, *_ = np.linalg.lstsq(A, Y, rcond=None)
+        # running sum of the residuals: any interval's sum is a difference of two rows
+        csum = np.cumsum(Y - A @ coef, axis=0)
+        csum = np.concatenate([np.zeros((1, csum.shape[1])), csum])
+        period = base = c.fine_update_period
+        r_std = None
+        for mult in (1, 2, 5, 10, 20):
+            p = base * mult
+            idx = np.floor((t - 0.5 * dt) / p).astype(int)   # sample midpoints: no ties
+            n_int = int(idx[-1])
+            if n_int < 8:
+                break
+            # idx never decreases: interval j holds the samples edges[j] .. edges[j+1] - 1
+            edges = np.searchsorted(idx, np.arange(n_int + 1))
+            counts = np.diff(edges)
+            means = (csum[edges[1:]] - csum[edges[:-1]]) / np.maximum(counts, 1)[:, None]
+            d = np.diff(means, axis=0)
+            # half the mean square difference (blind to a slow wander), but never below the
+            # variance of the means themselves: a sway that is not white (a slow tone) has
+            # differences smaller than its spread, and gating would then take every other
+            # interval for a shove
+            var = np.maximum(0.5 * np.mean(d ** 2, axis=0), np.mean(means ** 2, axis=0))
+            # differences of white means are MA(1): lag 1 -0.5, nothing beyond; a tone shows
+            # at some lag up to 5 (0.2 Hz in 1 s means: lag 5), alternating means at lag 1 -1
+            dd = np.maximum(np.sum(d * d, axis=0), 1e-300)
+            lags = [np.sum(d[k:] * d[:-k], axis=0) / dd for k in range(1, min(6, len(d) // 2))]
+            r1 = lags[0]
+            white = (r1 < 0.4) & (r1 > -0.75)
+            for rk in lags[1:]:
+                white &= np.abs(rk) < 0.4
+            floor2 = c.specs.accel_vrw ** 2 * p / 3.0 + c.fine_min_velocity_noise ** 2
+            var = var.reshape(self.n, 3)
+            # the sway's direction in the estimated frame moves with the heading error: a
+            # horizontal axis is as noisy as the noisier one
+            var[:, :2] = var[:, :2].max(axis=1, keepdims=True)
+            period, r_std = p, np.sqrt(np.maximum(var, floor2))
+            if np.all(white):
+                break
+        if r_std is None:
+            floor2 = c.specs.accel_vrw ** 2 * base / 3.0 + c.fine_min_velocity_noise ** 2
+            r_std = np.full((self.n, 3), math.sqrt(floor2))
+        return r_std, period
+
+
+
+def bridged(dt, w, f, gap, bridge):
+    """dt, w, f with a sample of the bridging means (rate, specific force) and the gap's
+    length put before each sample that follows a gap (the buffer as the filter ran it)."""
+    k = np.flatnonzero(gap > 0.0)
+    if not len(k):
+        return dt, w, f
+    n = w.shape[1]
+    dt = np.insert(dt, k, gap[k])
+    w = np.insert(w, k, np.broadcast_to(bridge[k, None, :3], (len(k), n, 3)), axis=0)
+    f = np.insert(f, k, np.broadcast_to(bridge[k, None, 3:], (len(k), n, 3)), axis=0)
+    return dt, w, f
+
+
+class SampleBuffer:
+    """Growable store of accepted samples for the backtrack: dt, gap, the hole variances
+    (attitude, velocity) (M,) and a gap's bridging rate and specific force (M, 6), w, f
+    (M, N, 3)."""
+
+    def __init__(self, n: int):
+        self._t = np.empty((1024, 10))
+        self._wf = np.empty((1024, n, 6))
+        self._n = 0
+        self._blocks = None            # (k, block means) of force_means
+
+    def append(self, dt, w, f, gap, hole=(0.0, 0.0), bridge=None):
+        if self._n == len(self._t):
+            self._t = np.concatenate([self._t, np.empty_like(self._t)])
+            self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
+        self._t[self._n, :4] = (dt, gap, hole[0], hole[1])
+        self._t[self._n, 4:] = 0.0 if bridge is None else np.concatenate(bridge)
+        self._wf[self._n, :, :3] = w
+        self._wf[self._n, :, 3:] = f
+        self._n += 1
+
+    def extend(self, dt, w, f):
+        """Append a block of samples (no gaps): w, f (M, N, 3)."""
+        m = len(w)
+        while self._n + m > len(self._t):
+            self._t = np.concatenate([self._t, np.empty_like(self._t)])
+            self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
+        self._t[self._n:self._n + m, 0] = dt
+        self._t[self._n:self._n + m, 1:] = 0.0
+        self._wf[self._n:self._n + m, :, :3] = w
+        self._wf[self._n:self._n + m, :, 3:] = f
+        self._n += m
+
+    def force_means(self, k: int, most: int) -> np.ndarray:
+        """Mean specific force of the last ``most`` complete blocks of ``k`` samples (counted
+        from the first sample, so the same blocks whatever the feeding), (m, N, 3). Each block
+        is averaged once (the buffer holds a minute: tens of blocks)."""
+        if self._blocks is None or self._blocks[0] != k:
+            self._blocks = (k, [])
+        means = self._blocks[1]
+        for j in range(len(means), self._n // k):
+            means.append(self._wf[j * k:(j + 1) * k, :, 3:].mean(axis=0))
+        got = means[-most:]
+        return np.array(got) if got else np.zeros((0, self._wf.shape[1], 3))
+
+    def arrays(self):
+        """dt, w, f, gap, hole (M, 2), bridge (M, 6): rate, specific force."""
+        t = self._t[: self._n]
+        wf = self._wf[: self._n]
+        return t[:, 0], wf[..., :3], wf[..., 3:], t[:, 1], t[:, 2:4], t[:, 4:]
+
+
+def runs_of(odd: np.ndarray, least: int):
+    """(start, end, regular) pieces covering ``odd``'s indices in order: runs of at least
+    ``least`` samples that are not odd are regular, everything between them is not."""
+    ok = np.concatenate(([False], ~odd, [False]))
+    edges = np.flatnonzero(np.diff(ok.astype(np.int8)))
+    starts, ends = edges[0::2], edges[1::2]
+    keep = ends - starts >= least
+    out, k = [], 0
+    for a, b in zip(starts[keep].tolist(), ends[keep].tolist()):
+        if a > k:
+            out.append((k, a, False))
+        out.append((a, b, True))
+        k = b
+    if k < len(odd):
+        out.append((k, len(odd), False))
+    return out

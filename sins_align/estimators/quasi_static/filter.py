@@ -1,0 +1,420 @@
+"""The filter itself: damped mechanization and error-state Kalman filter of the paper,
+vectorised over N runs (:class:`AlignmentFilter`).
+
+AlignmentFilter is made of three parts, one module each: this one (the per-sample
+recursion: mechanization, covariance propagation, the update with its gate and
+re-inflation), :mod:`~sins_align.estimators.quasi_static.fast_path` (closed-form integration
+between updates, the gain-schedule cache) and
+:mod:`~sins_align.estimators.quasi_static.backtrack` (the backtrack and the fine pass's
+tuning).
+"""
+from __future__ import annotations
+
+
+import numpy as np
+
+from sins_align.core.earth import earth_rate_enu, gravity_enu
+from sins_align.core.kalman import discretize, inv3, joseph_update, nis
+from sins_align.core.models import (apply_correction, averaged_measurement_matrix,
+                                    bias_input_matrix, measurement_matrix,
+                                    system_matrix)
+from sins_align.core.preint import earth_poly
+from sins_align.core.rotation import so3_exp
+from sins_align.core.specs import DEG, limit_covariance
+from sins_align.estimators.quasi_static.backtrack import Backtrack, SampleBuffer
+from sins_align.estimators.quasi_static.config import AlignConfig
+from sins_align.estimators.quasi_static.fast_path import FastPath
+from sins_align.estimators.quasi_static.schedule import SHARED_SCHEDULES, GainScheduleCache
+
+#: s: with heading unobservable, the gyro bias is attitude noise reaching its size in this time
+BIAS_TRACK_TIME = 10.0
+_THIRDS = np.full(3, 1.0 / 3.0)     # NIS per degree of freedom
+
+
+class AlignmentFilter(FastPath, Backtrack):
+    """The filter itself, vectorised over N independent runs that share one time line.
+
+    No input checking: callers hand it accepted samples only. :class:`Aligner` (N = 1)
+    wraps it for streaming data; Monte Carlo and batch tools drive N runs at once. With
+    the 'constant' model the coarse-pass covariance and gain do not depend on the data,
+    so they are computed once and shared by all runs (shape (1, 6, 6)).
+
+    Parameters
+    ----------
+    config : AlignConfig
+    C0 : ndarray (N, 3, 3) — initial C_b^n estimate of each run.
+    fast_backtrack : re-run the buffer with the fast path when it is uniformly sampled
+        (constant model); False keeps the whole run on the per-sample reference path.
+    schedules : the gain-schedule cache (default: the one all filters share).
+    """
+
+    def __init__(self, config: AlignConfig, C0: np.ndarray, fast_backtrack: bool = True,
+                 schedules: GainScheduleCache | None = None):
+        self.config = c = config
+        self.fast_backtrack = fast_backtrack
+        self.schedules = SHARED_SCHEDULES if schedules is None else schedules
+        self.lat = c.latitude_deg * DEG
+        self.w_ie = earth_rate_enu(self.lat)
+        self.g_n = gravity_enu(self.lat, c.height_m)
+        self.g = -self.g_n[2]
+        sp = c.specs
+        self.limit_std = np.sqrt(np.diag(limit_covariance(self.lat, sp, self.g)))
+        q_att = sp.gyro_arw ** 2
+        if not (self.limit_std[2] < c.heading_max_limit_std_deg * DEG):
+            # heading unobservable (MEMS): a gyro bias of degrees per minute turns the level
+            # faster than the gyro noise alone lets the filter follow; without bias states
+            # it would lag, be gated and diverge. The bias enters as attitude noise that
+            # reaches its own size over BIAS_TRACK_TIME.
+            q_att += sp.gyro_bias ** 2 * BIAS_TRACK_TIME
+        self.Qc = np.diag([q_att] * 3 + [sp.accel_vrw ** 2] * 3)
+        self._bias_var = np.array([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
+        self.Gamma = bias_input_matrix(c.model)
+        self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
+        self._K, self._W = earth_poly(self.w_ie)
+        self._K2 = self._K @ self._K
+        # (3, 9): column 3 k + i holds column i of M_k, M = I, K, K^2 (see _advance_segments)
+        self._g_col = self.g_n[:, None]
+        self._Gv = np.stack([np.eye(3), self._K, self._K2]).transpose(1, 0, 2).reshape(3, 9)
+        self._cache: dict = {}
+        self._scratch: dict = {}       # the fast path's large temporaries, reused (scratch_array)
+        self.on_update = None          # fast path: called with the sample index after updates
+        self._rerun = False
+        self._cfg_key = (c.model, self.w_ie.tobytes(), self.g_n.tobytes(), self.Qc.tobytes(),
+                         self._bias_var.tobytes())
+        self.fast = False
+        C0 = np.asarray(C0, dtype=float).reshape(-1, 3, 3)
+        self.n = len(C0)
+        self._start_pass(C0, fine=False, std=c.coarse_initial_std_deg,
+                         R=np.eye(3)[None] * c.coarse_velocity_noise ** 2)
+        self.stage = "coarse"
+        self.backtracked = False
+        self.fine_R_std: np.ndarray | None = None
+        self.fine_period = c.fine_update_period
+        self._steady_start = None
+        self._steady_std = None
+        self._buf = SampleBuffer(self.n) if c.backtrack else None
+        self._B = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
+        self.reinflations = np.zeros(self.n, dtype=int)
+        self.gated_updates = np.zeros(self.n, dtype=int)
+        # the fine pass started from the inertial-frame alignment (inertial.py)
+        self.started_inertial = np.zeros(self.n, dtype=bool)
+
+    # ------------------------------------------------------------------ state
+    def _start_pass(self, C0, fine: bool, std, R, v0=None):
+        """``std``: (level, heading) deg shared by all runs, or the initial (attitude E, N,
+        U rad; velocity E, N, U m/s) std per run, (N, 6). ``v0``: initial velocity (N, 3)."""
+        if isinstance(std, np.ndarray) and std.ndim == 2:
+            P = np.zeros((len(std), 6, 6))
+            P[:, range(6), range(6)] = std ** 2
+        else:
+            lv, hd = std[0] * DEG, std[1] * DEG
+            P = np.zeros((1, 6, 6))
+            P[0, :3, :3] = np.diag([lv ** 2, lv ** 2, hd ** 2])
+            P[0, 3:, 3:] = np.eye(3) * self.config.initial_velocity_std ** 2
+        self.C = np.array(C0, dtype=float)
+        self.v = np.zeros((self.n, 3)) if v0 is None else np.array(v0, dtype=float)
+        self.P0 = P
+        self.P = P                     # noise covariance, (1|N, 6, 6): what the gain uses
+        self.S = np.zeros((1, 6, 6))   # sensitivity of the error to ENU biases [accel; gyro]
+        self.R = R                     # measurement noise, (1|N, 3, 3)
+        self.fine = fine
+        self.v_sum = np.zeros((self.n, 3))
+        self.t_acc = 0.0               # time since the last fine update
+        self.t_int = 0.0               # integrated time since this pass started
+        self.nis_mean = np.zeros(self.n)
+        self.updates = 0
+        self.last_reinflate = np.zeros(self.n)
+        self.gate_start = np.full(self.n, np.nan)   # t_int of the first gated update in a row
+        self._gated = None             # runs whose last update was gated (None: none)
+        self._absorb = None            # runs whose last update absorbs a velocity error
+        self._inflate = None           # runs to re-inflate after the last update (fine pass)
+        self._z = None                 # innovation of the last update out of the gate
+        self._node = None              # position in the gain-schedule cache (None: unknown)
+
+    def total_covariance(self) -> np.ndarray:
+        """Noise covariance plus the bias-induced part ``S Sigma_b S^T``, (1|N, 6, 6)."""
+        return self._with_bias(self.P, self.S)
+
+    def _with_bias(self, P, S):
+        """P + S Sigma_b S^T (Sigma_b diagonal: the bias variances of the specs)."""
+        return P + (S * self._bias_var) @ S.mT
+
+    # ------------------------------------------------------------------ one sample
+    def step(self, dt: float, w: np.ndarray, f: np.ndarray, gap: float = 0.0, dR=None,
+             hole=(0.0, 0.0), bridge=None):
+        """One accepted IMU sample for every run: w, f (N, 3); dt, gap shared (s).
+        ``dR``: exp(w dt) (N, 3, 3), when the caller has it already. ``hole``: (attitude
+        rad^2, velocity (m/s)^2) variance per axis of what the motion could have done in
+        ``gap`` seconds of missing samples (added to the covariance, see :meth:`_advance`).
+        ``bridge``: (rate, specific force) in body axes (3,) each that stand in for the gap's
+        missing samples (the recent means; None: the state is held)."""
+        if dR is None:
+            dR = so3_exp(w * dt)
+        if self._buf is not None and not self.backtracked:
+            self._buf.append(dt, w, f, gap, hole, bridge)
+            if gap > 0.0 and bridge is not None:
+                self._B = self._B @ so3_exp(np.asarray(bridge[0], float) * gap)
+            self._B = self._B @ dR
+        self._advance(dt, w, f, gap, dR, hole, bridge)
+        if self._backtrack_due(dt):
+            self.backtrack()
+
+    def _backtrack_due(self, dt: float) -> bool:
+        return (self._buf is not None and not self.backtracked
+                and self.t_int >= self.config.backtrack_time - 0.5 * dt)
+
+    def run(self, dt, w: np.ndarray, f: np.ndarray):
+        """Many samples through :meth:`step` one by one (the reference path).
+
+        dt scalar or (T,), w and f (T, N, 3) (or (T, 3) when N = 1).
+        """
+        w = np.asarray(w, dtype=float).reshape(len(w), self.n, 3)
+        f = np.asarray(f, dtype=float).reshape(len(f), self.n, 3)
+        dts = np.broadcast_to(np.asarray(dt, dtype=float), (len(w),))
+        for k in range(len(w)):
+            self.step(float(dts[k]), w[k], f[k])
+
+    def _earth_step(self, dt):
+        key = ("E", dt)
+        E = self._cache.get(key)
+        if E is None:
+            E = so3_exp(-self.w_ie * dt)
+            if len(self._cache) < 256:
+                self._cache[key] = E
+        return E
+
+    def _disc(self, F, dt):
+        if F.ndim == 3:
+            return discretize(F, self.Qc, dt)
+        key = ("D", dt)
+        hit = self._cache.get(key)
+        if hit is None:
+            hit = discretize(F, self.Qc, dt)
+            if len(self._cache) < 256:
+                self._cache[key] = hit
+        return hit
+
+    def _F(self, fn):
+        model = self.config.model
+        if model == "constant":
+            return self._Fconst
+        return system_matrix(model, self.w_ie, self.g_n, fn, self.v)
+
+    def _propagate(self, F, dt):
+        Phi, Qd = self._disc(F, dt)
+        self.P = Phi @ self.P @ np.swapaxes(Phi, -1, -2) + Qd
+        self._node = None
+        self.S = Phi @ self.S + self.Gamma * dt
+
+    def _advance(self, dt, w, f, gap, dR=None, hole=(0.0, 0.0), bridge=None):
+        """Mechanization (paper eq. 1), covariance propagation, and an update when due.
+        ``dR``: exp(w dt), when the caller has it already."""
+        if gap > 0.0:
+            # bridged as static: the errors grow over the gap, and when the recent mean rate
+            # and specific force are given the state is mechanized with them over the gap as
+            # one step (the velocity then carries the level error's signal C f + g as the
+            # error model says; a velocity held still would contradict the model's coupling
+            # of velocity and attitude errors and bias the heading)
+            self._propagate(self._F(-self.g_n + 0.0 * self.v), gap)
+            if bridge is not None:
+                wb, fb = (np.asarray(b, float) for b in bridge)
+                self.C = self._earth_step(gap) @ self.C @ so3_exp(wb * gap)
+                self.v = self.v + ((self.C @ fb) + self.g_n) * gap
+                self.t_int += gap
+        va, vv = hole
+        if va > 0.0 or vv > 0.0:
+            # samples were missing: what the motion could have done meanwhile (Aligner)
+            self.P = self.P + np.diag([va] * 3 + [vv] * 3)
+            self._node = None
+        self.C = self._earth_step(dt) @ self.C @ (so3_exp(w * dt) if dR is None else dR)
+        fn = (self.C @ f[..., None])[..., 0]
+        self.v = self.v + (fn + self.g_n) * dt
+        self.t_int += dt
+        F = self._F(fn)
+        self._propagate(F, dt)
+        if not self.fine:
+            # coarse pass: the paper's instantaneous zero-velocity update, at every sample or
+            # every coarse_update_period; R scaled so the noise density does not depend on it
+            period = self.config.coarse_update_period
+            self.t_acc += dt
+            if self.t_acc >= period - 0.5 * dt:
+                H = measurement_matrix(self.config.model, self.v)
+                self._correct(self.v, H, scale=0.01 / self.t_acc)
+                self.t_acc = 0.0
+            return
+        self.v_sum += self.v * dt
+        self.t_acc += dt
+        if self.t_acc >= self.fine_period - 0.5 * dt:
+            H = measurement_matrix(self.config.model, self.v)
+            Ha = averaged_measurement_matrix(H, F, self.t_acc)
+            self._correct(self.v_sum / self.t_acc, Ha)
+            self.v_sum = np.zeros((self.n, 3))
+            self.t_acc = 0.0
+
+    def _correct(self, z, H, scale: float = 1.0):
+        prior = (self.P, self.S)
+        K, Sinv = self._gain(H, scale)
+        x = self._innovate(z.T, K, Sinv)
+        self._settle(lambda: prior, H, scale, x)
+        self.C, self.v = apply_correction(self.config.model, self.C, self.v, x.T,
+                                          turn_velocity=self.fine)
+
+    def _gain(self, H, scale: float):
+        """Covariance part of an update: gain K and the inverse innovation covariance
+        (with the bias part) for the NIS. Updates P and S."""
+        R = self.R * scale
+        HS = H @ self.S
+        self.P, K, Sn = joseph_update(self.P, H, R)
+        self._node = None
+        self.S = self.S - K @ HS
+        # innovation covariance with the bias part: H (P + S Sb S^T) H^T + R
+        return K, inv3(Sn + (HS * self._bias_var) @ HS.mT)
+
+    def _innovate(self, z, K, Sinv, out=None):
+        """The correction ``x = K z`` of an update and its NIS bookkeeping, component-major:
+        z (3, N), returns x (6, N) (in ``out`` if given).
+
+        Coarse pass: runs whose running mean NIS exceeds ``reinflate_nis`` are re-inflated
+        here. Fine pass: runs whose NIS exceeds ``gate_nis`` are gated (their x is zero and
+        they are marked in ``_gated``: the caller's :meth:`_settle` gives them back their
+        prior covariance); runs gated persistently are marked in ``_inflate``."""
+        self.updates += 1
+        a = 0.1 if self.updates > 10 else 1.0 / self.updates
+        c = self.config
+        self._gated = self._absorb = self._inflate = None
+        if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
+            x = np.matmul(K[0], z, out=out)
+            if z.shape[1] == 1:             # one run (the node, replay): scalar arithmetic
+                z0, z1, z2 = z.ravel().tolist()
+                (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = Sinv[0].tolist()
+                r = (z0 * (s00 * z0 + s01 * z1 + s02 * z2)
+                     + z1 * (s10 * z0 + s11 * z1 + s12 * z2)
+                     + z2 * (s20 * z0 + s21 * z1 + s22 * z2)) / 3.0
+                m = float(self.nis_mean[0])
+                if self.fine:
+                    if 3.0 * r <= c.gate_nis:
+                        self.nis_mean = np.array([m + a * (r - m)])
+                        if self.gate_start[0] == self.gate_start[0]:      # not NaN
+                            self.gate_start = np.full(1, np.nan)
+                        return x
+                    r = np.array([r])
+                else:
+                    m += a * (r - m)
+                    self.nis_mean = np.array([m])
+                    if m <= c.reinflate_nis:
+                        return x
+                    r = None                # already in the mean
+            else:
+                r = _THIRDS @ ((Sinv[0] @ z) * z)
+        else:
+            x = np.einsum("nij,jn->in", K, z, out=out)
+            r = nis(z.T, Sinv) / 3.0
+        if self.fine:
+            self._gate(r, a, x, z)
+            return x
+        if r is not None:
+            self.nis_mean = self.nis_mean + a * (r - self.nis_mean)
+        if self.nis_mean.max() > c.reinflate_nis:
+            bad = (self.nis_mean > c.reinflate_nis) & (
+                self.t_int - self.last_reinflate >= c.reinflate_holdoff - 1e-6)
+            if bad.any():
+                self._reinflate(bad)
+        return x
+
+    def _gate(self, r, a: float, x, z):
+        """Fine-pass gating (chi-square on the NIS, robot_localization style).
+
+        An update whose NIS ``3 r`` exceeds ``gate_nis`` is not applied: a shove or a door
+        slam is not evidence about the attitude (and its velocity returns). Its NIS still
+        enters the running mean (capped at 100 per dof, so one jolt does not read as
+        'disturbed' for minutes). When the next update is out of the gate too, the
+        velocity error is lasting (a lost velocity increment, a push that did not return):
+        the update is applied with the velocity variance grown by the innovation
+        (``_absorb``), so the velocity state takes it instead of the attitude. Updates out
+        of the gate for ``reinflate_gated_time`` in a row mean the attitude really changed
+        (re-levelled, moved): the run is marked for re-inflation (``_inflate``).
+        """
+        c = self.config
+        self.nis_mean = self.nis_mean + a * (np.minimum(r, 100.0) - self.nis_mean)
+        g = 3.0 * r > c.gate_nis
+        if not g.any():
+            self.gate_start = np.full(self.n, np.nan)
+            return
+        again = g & ~np.isnan(self.gate_start)
+        self.gate_start = np.where(g, np.where(again, self.gate_start, self.t_int), np.nan)
+        self.gated_updates += g
+        self._z = z.copy()
+        first = g & ~again
+        if first.any():
+            x[:, first] = 0.0
+            self._gated = first
+        if again.any():
+            self._absorb = again
+        persist = g & (self.t_int - self.gate_start >= c.reinflate_gated_time - 1e-6)
+        if persist.any():
+            self._inflate = persist
+
+    def _settle(self, prior, H=None, scale: float = 1.0, x=None):
+        """After an update (before its feedback): runs that were gated get back their prior
+        covariance (``prior()`` returns it: P, S of the propagation alone); runs that absorb
+        a lasting velocity error are updated again from that prior with the velocity
+        variance grown by the innovation (``x`` rewritten); runs whose gating persisted are
+        re-inflated (fine pass). Nothing to do (the usual case): returns at once."""
+        g, ab = self._gated, self._absorb
+        if g is not None or ab is not None:
+            self._gated = self._absorb = None
+            post = self.P, self.S
+            Pp, Sp = prior()
+            if ab is None and g.all():      # every run coasts: the prior, still shared (the
+                self.P, self.S = Pp, Sp     # fast path's prior() set the cache node to it)
+            else:
+                shape = (self.n, 6, 6)
+                P, S = (np.broadcast_to(q, shape) for q in post)
+                if g is not None:
+                    P, S = _where_runs(g, Pp, P), _where_runs(g, Sp, S)
+                if ab is not None:
+                    self.P = _grow_velocity(np.broadcast_to(Pp, shape), ab, self._z)
+                    self.S = np.broadcast_to(Sp, shape).copy()
+                    K, _ = self._gain(H, scale)
+                    x[:, ab] = np.einsum("nij,jn->in", K, self._z)[:, ab]
+                    P, S = _where_runs(ab, self.P, P), _where_runs(ab, self.S, S)
+                self.P, self.S, self._node = P, S, None
+        if self._inflate is not None:
+            mask, self._inflate = self._inflate, None
+            self._reinflate(mask, self._z)
+
+    def _reinflate(self, mask: np.ndarray, z=None):
+        """Reset the covariance of the runs in ``mask`` to the pass's initial value.
+
+        Coarse pass: the innovations say the error is far larger than the covariance claims
+        (a large-angle transient stuck near a 180 deg flip): restarting the gain schedule
+        lets the filter move again instead of crawling with a collapsed covariance. Fine
+        pass (``z``, the last innovation, given): the attitude really changed; the velocity
+        variance also covers the velocity error accumulated while updates were gated.
+        """
+        P = np.broadcast_to(self.P, (self.n, 6, 6)).copy()
+        S = np.broadcast_to(self.S, (self.n, 6, 6)).copy()
+        P[mask] = np.broadcast_to(self.P0, P.shape)[mask]
+        if z is not None:
+            P = _grow_velocity(P, mask, z)
+        S[mask] = 0.0
+        self.P, self.S = P, S
+        self._node = None
+        self.nis_mean = np.where(mask, 0.0, self.nis_mean)
+        self.gate_start = np.where(mask, np.nan, self.gate_start)
+        self.last_reinflate = np.where(mask, self.t_int, self.last_reinflate)
+        self.reinflations += mask
+
+
+def _where_runs(mask: np.ndarray, a, b) -> np.ndarray:
+    """(N, 6, 6): ``a`` for the runs in ``mask``, ``b`` for the others (either (1|N, 6, 6))."""
+    return np.where(mask[:, None, None], a, b)
+
+
+def _grow_velocity(P: np.ndarray, mask: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """P (N, 6, 6) with the velocity variances of the runs in ``mask`` grown by z^2 (z (3, N),
+    an innovation the model could not explain): a new array."""
+    P = P.copy()
+    i = np.arange(3, 6)
+    P[:, i, i] += np.where(mask[:, None], (z * z).T, 0.0)
+    return P

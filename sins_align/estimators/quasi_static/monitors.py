@@ -1,0 +1,302 @@
+"""What the Aligner watches on the input besides single samples: the recent motion (for
+bridging holes, :class:`RecentMotion`) and the units of the rates (:class:`UnitsMonitor`,
+deg/s sent for rad/s).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sins_align.core.earth import OMEGA_IE
+from sins_align.core.rotation import dcm_from_quat, so3_exp
+from sins_align.core.specs import DEG
+
+if TYPE_CHECKING:
+    from sins_align.estimators.quasi_static.aligner import Aligner
+
+
+class RecentMotion:
+    """The last accepted samples (a ring of fixed size): how much the platform moves.
+
+    Read when samples are missing (how far the attitude and velocity could have moved in
+    the hole) and while the coarse pass runs (the specific force of the last second, the
+    accelerometer's own view of the level error). Fed sample by sample (the node) or in
+    blocks (replay), it holds the same numbers either way.
+    """
+
+    SIZE = 16384
+    WINDOW = 20.0                       # s of samples the motion statistics look at
+
+    def __init__(self):
+        self._a = np.zeros((self.SIZE, 7))       # dt, w, f
+        self._i = 0                              # next row to write
+        self._n = 0                              # rows filled
+
+    def push(self, dt: float, w, f):
+        row = self._a[self._i]
+        row[0] = dt
+        row[1:4] = w
+        row[4:7] = f
+        self._i = (self._i + 1) % self.SIZE
+        self._n = min(self._n + 1, self.SIZE)
+
+    def extend(self, dts, w, f):
+        m = len(w)
+        if m >= self.SIZE:
+            dts, w, f = dts[-self.SIZE:], w[-self.SIZE:], f[-self.SIZE:]
+            m = self.SIZE
+        idx = (self._i + np.arange(m)) % self.SIZE
+        self._a[idx, 0] = dts
+        self._a[idx, 1:4] = w
+        self._a[idx, 4:7] = f
+        self._i = (self._i + m) % self.SIZE
+        self._n = min(self._n + m, self.SIZE)
+
+    def last(self, seconds: float) -> np.ndarray:
+        """Rows (dt, w, f) of the last samples spanning at most ``seconds``, oldest first."""
+        if self._n == 0:
+            return self._a[:0]
+        dt = self._a[self._i - 1, 0]
+        # read back only as far as the span needs: guessed from the newest interval, doubled
+        # while it falls short
+        m = self._n if dt <= 0.0 else min(self._n, int(1.25 * seconds / dt) + 2)
+        while True:
+            rows = self._tail(m)
+            span = np.cumsum(rows[::-1, 0])
+            if m == self._n or span[-1] > seconds:
+                break
+            m = min(2 * m, self._n)
+        k = max(1, int(np.searchsorted(span, seconds, side="right")))
+        return rows[m - k:]
+
+    def _tail(self, m: int) -> np.ndarray:
+        """The newest m rows, oldest first (two slices when they wrap round the ring)."""
+        a, i = self._a, self._i
+        if m <= i:
+            return a[i - m:i]
+        return np.concatenate((a[self.SIZE - (m - i):], a[:i]))
+
+    def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
+        """Mean specific force over the last ``seconds`` (None before any sample)."""
+        rows = self.last(seconds)
+        if not len(rows):
+            return None
+        return rows[:, 4:7].mean(axis=0)
+
+    def bridge_errors(self, hole: float, nom: float, w_next, f_next, held: bool = True):
+        """The bridges of a hole of ``hole`` seconds before the sample (w_next, f_next) and
+        their errors: ``(means, held, (w_mean, f_mean))`` with ``means`` and ``held`` the
+        (attitude rad^2, velocity (m/s)^2) variance per axis of each bridge (``held`` None
+        when not asked for) and the last second's mean rate and specific force, the means
+        bridge itself. The errors are measured on the motion of the last WINDOW seconds (the
+        largest axis counts for all three, the body axes not being the ENU ones).
+
+        Each bridge is replayed at every position of the window, and the RMS of its error
+        there, times sqrt(2) (a tone's peak over its RMS), is one sigma:
+
+        - ``held`` (m = hole / nom missing samples): the next sample's rate and specific
+          force stand in for the missing ones, so the error is
+          ``nom sum_i (x_next - x_i)`` over the m samples it replaces. At the hole itself
+          the change from the last sample to the next one is seen: a ramp between them
+          makes ``|x_next - x_last| nom m / 2``, taken when larger (a shove in the hole).
+        - bridged with the recent means: the rate's (specific force's) deviation from its
+          mean over the window, integrated over m samples; a hole longer than the window is
+          bounded by the range of that integral (a bounded sway cannot move further than its
+          own range), grown with the hole's length beyond the window for a wander that is
+          not stationary. At the hole itself, the mean of the samples on either side less
+          the last second's mean, over the hole, is taken when larger.
+
+        Noise counts as motion here (the bridge's error against the complete data), which
+        errs on the safe side: the truth has no sensor noise in it.
+        """
+        second = self.last(1.0)[:, 1:7].mean(axis=0)        # the means bridge
+        rows = self.last(self.WINDOW)
+        n = len(rows)
+        if n < 3:
+            return (0.0, 0.0), ((0.0, 0.0) if held else None), (second[:3], second[3:])
+        T = float(rows[:, 0].sum())
+        m = max(1, int(round(hole / nom)))
+        means, holds = [], []
+        for x, nxt in ((rows[:, 1:4], w_next), (rows[:, 4:7], f_next)):
+            d = x - (x * rows[:, :1]).sum(0) / T
+            wander = np.cumsum(d * rows[:, :1], axis=0)
+            spread = float((wander.max(0) - wander.min(0)).max())
+            bound = spread * math.sqrt(1.0 + hole / T)
+            if m < n:
+                Sd = np.concatenate((np.zeros((1, 3)), wander))
+                e = Sd[m:] - Sd[:-m]
+                rms = float(np.sqrt(np.mean(e * e, axis=0)).max())
+                bound = min(bound, math.sqrt(2.0) * rms)
+            # at the hole itself: the samples on either side of it away from the mean of the
+            # last 1 / nom samples say the missing ones were too (a sway's peak)
+            edge = 0.5 * (np.asarray(nxt) + x[-1]) - x[-min(n, int(round(1.0 / nom))):].mean(0)
+            means.append(max(bound, float(np.abs(edge).max()) * nom * m) ** 2)
+            if held:
+                # at position k the held sample is x[k+m+1], the replaced ones x[k+1..k+m];
+                # a hole as long as the window: what the means bridge would err
+                if m + 1 < n:
+                    S = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
+                    e = nom * (m * x[m + 1:] - (S[m + 1:n] - S[1:n - m]))
+                    rms = float(np.sqrt(np.mean(e * e, axis=0)).max())
+                    ramp = float(np.abs(np.asarray(nxt) - x[-1]).max()) * nom * m / 2.0
+                    holds.append(max(math.sqrt(2.0) * rms, ramp) ** 2)
+                else:
+                    holds.append(means[-1])
+        return tuple(means), (tuple(holds) if held else None), (second[:3], second[3:])
+
+
+class UnitsMonitor:
+    """Detects gyro rates that are not rad/s (deg/s is 57.3x too large).
+
+    Statistic: over each window (``units_check_window``, 30 s) every specific-force sample
+    is rotated into the window's start frame with the gyro-integrated rotation B
+    (``u = B f``) and averaged over 1 s bins; the body-frame samples ``f`` are binned the
+    same way. The scatter of a set of bin means is the RMS angle between each of them and
+    their (time-weighted) mean direction.
+
+    - With rad/s rates all u point along gravity (fixed in the start frame) up to linear
+      acceleration ``a / g`` and the slow drift of Earth rate and gyro bias. Linear
+      acceleration shows in the body-frame f just as much (rotation does not change its
+      size), so the u scatter stays below about the f scatter: sway, heave, surge and a
+      shove raise both together.
+    - With rates 57.3x too large B turns the wrong way: the u wander by the rotation error
+      (tens of degrees in sway; on a static base Earth rate's horizontal component x 57.3,
+      about 0.2 deg/s at 34 deg N and 0.12 deg/s at 60 deg N, i.e. a ramp of 3.6-6 deg in
+      30 s, 1-1.7 deg RMS), while f does not move.
+
+    The rates are flagged when ``scatter(u) > RATIO x scatter(f) + allow T / sqrt(12) + TOL``:
+    ``allow T / sqrt(12)`` is the RMS of the largest genuine drift over the window (Earth
+    rate plus 3x the gyro bias spec), TOL a margin for the rest (noise, the second-order
+    terms of sway). A window is discarded without a verdict at a gap or a time jump (an
+    interval above ``gap_ratio`` x nominal, or above ``max_gap``): the rate of one sample
+    cannot be integrated over the hole.
+    """
+
+    RATIO = 2.0
+    TOL = 0.25 * DEG
+
+    def __init__(self, al: Aligner):
+        self.al = al
+        self.window = al.config.units_check_window
+        self.allow = OMEGA_IE + 3.0 * al.config.specs.gyro_bias
+        self.bins = int(math.ceil(self.window)) + 1
+        self.last_mismatch_deg = None       # scatter of u of the last judged window, deg
+        self.last_limit_deg = None          # and the limit it was compared with, deg
+        self.verdict: bool | None = None    # of the window add() closed; the Aligner takes it
+        self._start()
+
+    def _start(self):
+        self.T = 0.0
+        self.B = np.eye(3)
+        self.acc = np.zeros((self.bins, 7))     # per 1 s bin: sum dt, sum f dt, sum u dt
+
+    def _gap(self, dt) -> float:
+        """Largest interval that is not a gap (the Aligner's rule; max_gap while the
+        nominal interval is not known yet)."""
+        c, nom = self.al.config, self.al.nominal_dt
+        return c.max_gap if nom is None else min(c.gap_ratio * nom, c.max_gap)
+
+    def add_block(self, dts, w, f) -> int:
+        """Samples of a run. Windows that close inside it are judged as :meth:`add` would
+        (a gap or a non-positive interval discards the window, as there); the block stops
+        before the closing sample of a window that would flag the rates (that sample goes
+        through :meth:`add`). Returns how many samples were taken."""
+        dts = np.asarray(dts, dtype=float)
+        n = len(dts)
+        bad = np.flatnonzero(~((dts > 0.0) & (dts <= self._gap(None))))
+        k = 0
+        for b in list(bad) + [n]:
+            m = self._add_run(dts[k:b], w[k:b], f[k:b])
+            if m < b - k:
+                return k + m
+            if b < n:
+                self._start()                 # a gap: no verdict, a new window after it
+            k = b + 1
+        return n
+
+    def _add_run(self, dts, w, f) -> int:
+        """add_block for a run without gaps."""
+        k, n = 0, len(dts)
+        while k < n:
+            # window times as add() sums them (one addition after the other)
+            T = np.cumsum(np.concatenate([[self.T], dts[k:]]))[1:]
+            closing = np.nonzero(T >= self.window)[0]
+            end = k + int(closing[0]) + 1 if len(closing) else n
+            state = self._accumulated(dts[k:end], w[k:end], f[k:end], T[:end - k])
+            if not len(closing):
+                self.B, self.acc, self.T = state
+                return n
+            verdict = self._verdict(*state)
+            if verdict is not None and verdict[0] and not self.al.units_suspect:
+                if end - 1 > k:                   # everything before the closing sample
+                    self.B, self.acc, self.T = self._accumulated(
+                        dts[k:end - 1], w[k:end - 1], f[k:end - 1], T[:end - 1 - k])
+                return end - 1
+            if verdict is not None:
+                self.last_mismatch_deg, self.last_limit_deg = verdict[1] / DEG, verdict[2] / DEG
+            self._start()
+            k = end
+        return n
+
+    def _accumulated(self, dts, w, f, T):
+        """(B, bin sums, T) after samples with window times T (not stored)."""
+        from sins_align.core.preint import prefix_rotations
+        q = prefix_rotations(dts[None], w[None])       # exp(w_1 dt_1) ... exp(w_k dt_k)
+        Q = dcm_from_quat(np.stack([c[0] for c in q], axis=-1))
+        u = np.einsum("ij,kjl,kl->ki", self.B, Q, f)
+        acc = self.acc.copy()
+        j = np.minimum(T.astype(int), self.bins - 1)
+        for col, x in ((0, dts[:, None]), (1, f * dts[:, None]), (4, u * dts[:, None])):
+            for i in range(x.shape[1]):
+                acc[:, col + i] += np.bincount(j, x[:, i], minlength=self.bins)
+        return self.B @ Q[-1], acc, float(T[-1])
+
+    @staticmethod
+    def _scatter(m: np.ndarray, wt: np.ndarray) -> float:
+        """RMS angle (rad, weights wt) between vectors m (k, 3) and their weighted mean."""
+        d = wt @ m
+        d = d / np.linalg.norm(d)
+        ang = np.arctan2(np.linalg.norm(np.cross(m, d), axis=1), m @ d)
+        return math.sqrt(float(wt @ (ang * ang)) / float(wt.sum()))
+
+    def _verdict(self, B, acc, T):
+        """(flag the rates?, scatter of u, limit), rad, of a closed window; None without
+        data (fewer than two bins, or a zero mean)."""
+        wt = acc[:, 0]
+        use = wt > 0.0
+        if use.sum() < 2:
+            return None
+        wt = wt[use]
+        mf = acc[use, 1:4] / wt[:, None]
+        mu = acc[use, 4:7] / wt[:, None]
+        if not (np.linalg.norm(wt @ mf) > 0.0 and np.linalg.norm(wt @ mu) > 0.0):
+            return None
+        su, sf = self._scatter(mu, wt), self._scatter(mf, wt)
+        limit = self.RATIO * sf + self.allow * T / math.sqrt(12.0) + self.TOL
+        return su > limit, su, limit
+
+    def add(self, dt, w, f):
+        """One sample; returns exp(w dt), which the filter can reuse (None if skipped: a
+        gap or a time jump, which also discards the window). A window closing here leaves
+        its verdict in :attr:`verdict` (True: the rates look like deg/s)."""
+        if not 0.0 < dt <= self._gap(None):
+            self._start()
+            return None
+        dR = so3_exp(w * dt)
+        self.B = self.B @ dR
+        self.T += dt
+        j = min(int(self.T), self.bins - 1)
+        a = self.acc[j]
+        a[0] += dt
+        a[1:4] += f * dt
+        a[4:7] += (self.B @ f) * dt
+        if self.T >= self.window:
+            verdict = self._verdict(self.B, self.acc, self.T)
+            if verdict is not None:
+                bad, su, limit = verdict
+                self.verdict = bool(bad)
+                self.last_mismatch_deg, self.last_limit_deg = su / DEG, limit / DEG
+            self._start()
+        return dR
