@@ -89,10 +89,10 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  read_message_chunks, signals_deferred)
 from sins_align.io.cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
 from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
-from sins_align.ros.align_node import NODE_PARAMS
 from sins_align.ros.outputs import (BackwardJump, StampClock, euler_deg, imu_output, imu_sample,
                       node_diagnostics)
-from sins_align.ros.params import NODE_NAME, config_from_params, defaults, load_params_yaml
+from sins_align.ros.params import (NODE_NAME, NODE_PARAMS, check_param, config_from_params,
+                                   defaults, load_params_yaml, param_spec)
 from sins_align.core.rotation import attitude_error, dcm_from_quat, rpy_from_dcm, so3_exp, so3_log
 from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ
 
@@ -104,7 +104,8 @@ ALIGNED_TOPIC = "/alignment/aligned"
 EULER_TOPIC = "/alignment/euler_deg"
 DIAG_TOPIC = "/diagnostics"
 #: Publication periods in data time, ns (Euler: 1 / euler_rate, default 10 Hz).
-EULER_PERIOD_NS = int(round(1e9 / NODE_PARAMS["euler_rate"][0]))
+EULER_RATE = param_spec("euler_rate", "node").default
+EULER_PERIOD_NS = int(round(1e9 / EULER_RATE))
 DIAG_PERIOD_NS = 1_000_000_000
 #: DiagnosticStatus.name, as the node names it.
 DIAG_NAME = f"{NODE_NAME}: alignment"
@@ -163,8 +164,9 @@ def params_from_args(args) -> tuple[dict[str, Any], dict[str, Any]]:
             loaded = load_params_yaml(args.params)
         except ValueError as e:
             raise CliError(one_line(e)) from None
+        node_names = {p.name for p in NODE_PARAMS} | {"use_sim_time"}
         for k, v in loaded.items():
-            (node_only if k in NODE_PARAMS or k == "use_sim_time" else values)[k] = v
+            (node_only if k in node_names else values)[k] = v
         lat = values.get("latitude")
         if isinstance(lat, float) and math.isnan(lat):
             raise CliError(f"latitude in {args.params} must be a finite number, got nan")
@@ -179,11 +181,9 @@ def params_from_args(args) -> tuple[dict[str, Any], dict[str, Any]]:
             raise CliError(f"--{flag} must be a finite number, got {v}")
     if args.initial_rpy is not None:
         values["initial_rpy"] = [float(a) for a in args.initial_rpy]
-    rate = node_only.get("euler_rate", NODE_PARAMS["euler_rate"][0])
-    lo, hi = NODE_PARAMS["euler_rate"][2:4]
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:
-        raise CliError(f"bad parameters: euler_rate must be within [{lo:g}, {hi:g}], "
-                       f"got {rate!r}")
+    reason = check_param("euler_rate", node_only.get("euler_rate", EULER_RATE), "node")
+    if reason:
+        raise CliError(f"bad parameters: {reason}")
     return values, node_only
 
 
@@ -1049,7 +1049,7 @@ def run(argv: Sequence[str] | None = None) -> int:
     values, node_only = params_from_args(args)
     config = config_or_error(values)
     params = merged_params(values)
-    euler_rate = float(node_only.get("euler_rate", NODE_PARAMS["euler_rate"][0]))
+    euler_rate = float(node_only.get("euler_rate", EULER_RATE))
 
     atomic = {w: AtomicOutput(p, is_dir=d, force=args.force) for w, (p, d) in outs.items()}
     try:
