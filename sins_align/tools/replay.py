@@ -85,9 +85,11 @@ import numpy as np
 
 from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks,
                                  check_bag_dir_name, check_new_output, cli_main, deserialize,
-                                 one_line, open_reader, open_writer, qos_profile,
-                                 read_message_chunks, signals_deferred)
-from sins_align.io.cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
+                                 finite_or_none, need_matplotlib, one_line, open_reader,
+                                 open_writer, pyplot, qos_profile, read_message_chunks,
+                                 signals_deferred)
+from sins_align.io.cdr import (IMU_TYPE, ImuBatch, decode_imu_array, decode_imu_batch,
+                               reader_imu_layout)
 from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
 from sins_align.ros.outputs import (BackwardJump, StampClock, euler_deg, imu_output, imu_sample,
                       node_diagnostics)
@@ -110,7 +112,6 @@ DIAG_PERIOD_NS = 1_000_000_000
 #: DiagnosticStatus.name, as the node names it.
 DIAG_NAME = f"{NODE_NAME}: alignment"
 
-IMU_TYPE = "sensor_msgs/msg/Imu"
 TRUTH_TYPE = "geometry_msgs/msg/QuaternionStamped"
 NS = 1_000_000_000
 
@@ -304,18 +305,6 @@ class DecimatedSeries:
                 self.rows = self.rows[::2]
                 self.stride *= 2
         self._n += 1
-
-
-def _finite_or_none(x):
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {k: _finite_or_none(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_finite_or_none(v) for v in x]
-    if isinstance(x, np.generic):
-        return _finite_or_none(x.item())
-    return x
 
 
 def _stamp_ns(msg) -> int:
@@ -927,23 +916,12 @@ def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = N
     summ = session.summary(config_echo(config, params))
     summ = {"bag": str(bag), "topic": topic, "truth_topic": truth_topic, **summ,
             "wall_time_s": wall, "messages_per_s": n / wall if wall > 0 else None}
-    return _finite_or_none(summ), session
+    return finite_or_none(summ), session
 
 
 # ----------------------------------------------------------------------------- plot
-def _need_matplotlib():
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise CliError("--plot needs matplotlib, which is not installed: "
-                       "pip install matplotlib") from None
-
-
 def write_plot(path: Path, session: ReplaySession, summary: dict[str, Any]):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     rows = np.array(session.series.rows, dtype=float).reshape(-1, 11)
     t = rows[:, 0]
     truth = session.with_truth
@@ -1031,7 +1009,7 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
 def run(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.plot:
-        _need_matplotlib()
+        need_matplotlib()
     if not Path(args.bag).exists():
         raise CliError(f"bag {args.bag} does not exist")
     outs = {}
