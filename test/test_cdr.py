@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 
 from sins_align.io import cdr
+from sins_align.io.bagio import finite_or_none
 
 from sins_align.tools import replay
 from sins_align.io.cdr import (CDR_BE, CDR_LE, ImuDecodeError, ImuLayout, decode_imu_batch,
@@ -479,7 +480,7 @@ def test_replay_feeds_the_session_what_rosbags_gives(tmp_path, ts2, monkeypatch)
             (ref.on_imu if c.msgtype == IMU else ref.on_truth)(m)
         ref.finish()
         w.close()
-    s_ref = replay._finite_or_none(ref.summary(replay.config_echo(config, {})))
+    s_ref = finite_or_none(ref.summary(replay.config_echo(config, {})))
     assert s["samples"] == len(items) == 2500 and s["truth"]["samples"] == len(truth)
     assert json.dumps(strip(s), sort_keys=True) == json.dumps(s_ref, sort_keys=True)
     assert s["final"]["frame_id"] == "imu_linké_2"

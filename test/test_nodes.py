@@ -32,7 +32,8 @@ import sins_align
 from sins_align.ros import align_node
 from sins_align.estimators.session import BACKWARD_JUMP_CONFIRM
 from sins_align.ros.outputs import covariance_is_valid
-from sins_align.ros.params import PARAMS, config_from_params, load_params_yaml
+from sins_align.ros.params import (ALIGN_NODE_PARAMS, PARAMS, check_param, config_from_params,
+                                   load_params_yaml)
 from sins_align.core.rotation import attitude_error, dcm_from_quat, rpy_from_dcm
 from sins_align.sim.simulator import SwayProfile, simulate
 from sins_align.core.specs import DEG, grade_specs, limit_std
@@ -340,14 +341,15 @@ def test_align_yaml_lists_every_parameter_with_its_default():
 
     path = Path(sins_align.__file__).parent / "config" / "align.yaml"
     values = load_params_yaml(path)
-    assert set(values) == {p.name for p in PARAMS} | set(align_node.NODE_PARAMS)
-    for p in PARAMS:
+    assert set(values) == {p.name for p in ALIGN_NODE_PARAMS}
+    assert {p.name for p in ALIGN_NODE_PARAMS} == {p.name for p in PARAMS} | {"euler_rate",
+                                                                            "queue_size"}
+    for p in ALIGN_NODE_PARAMS:
         if p.name != "latitude":
             assert values[p.name] == p.default, (p.name, values[p.name], p.default)
-    for name, spec in align_node.NODE_PARAMS.items():
-        assert values[name] == spec[0], name
+            assert check_param(p.name, values[p.name], p.scope) is None, p.name
     assert math.isfinite(values["latitude"])
-    config_from_params({k: v for k, v in values.items() if k not in align_node.NODE_PARAMS})
+    config_from_params({p.name: values[p.name] for p in PARAMS})
 
 
 # ---------------------------------------------------------------------------- bad input
@@ -548,7 +550,7 @@ def test_ros_time_jumping_back_restarts_the_alignment(probe):
     from rclpy.parameter import Parameter
     from rclpy.time import Time
 
-    node = align_node._make_node_class()(
+    node = align_node.make_node_class()(
         context=probe.context, namespace=f"/jump_{RUN}",
         parameter_overrides=[Parameter("latitude", value=34.0),
                              Parameter("use_sim_time", value=True)])
@@ -589,7 +591,7 @@ def test_queue_size_sets_the_imu_history_depth_in_and_out(probe):
     from rclpy.parameter import Parameter
     from rclpy.qos import ReliabilityPolicy
 
-    node = align_node._make_node_class()(
+    node = align_node.make_node_class()(
         context=probe.context, namespace=f"/depth_{RUN}",
         parameter_overrides=[Parameter("latitude", value=34.0), Parameter("queue_size", value=321)])
     try:
@@ -615,7 +617,7 @@ def test_raw_path_publishes_what_the_message_path_publishes(probe):
     ts = get_typestore(Stores.ROS2_JAZZY)
     nodes = []
     for path in ("raw", "msg"):
-        node = align_node._make_node_class()(
+        node = align_node.make_node_class()(
             context=probe.context, namespace=f"/{path}_path_{RUN}",
             parameter_overrides=[Parameter("latitude", value=34.0),
                                  Parameter("rate", value=RATE),

@@ -1,4 +1,5 @@
-"""Bag plumbing shared by the command-line tools (replay, simulate, import_imu).
+"""Bag plumbing shared by the command-line tools (replay, simulate, import_imu,
+montecarlo).
 
 - one-line user errors (:class:`CliError`, :func:`cli_main`): no tracebacks for bad input;
 - outputs that appear only when complete (:class:`AtomicOutput`): written under a temporary
@@ -10,7 +11,9 @@
   :func:`read_messages`, :func:`read_message_chunks`, :func:`deserialize`);
 - one topic's raw messages in blocks (:class:`TopicBlocks`), MCAP chunks parsed with numpy
   (:class:`McapTopicReader`; rosbags' order and bytes, rosbags for anything else);
-- a progress line on stderr, only when stderr is a terminal (:class:`Progress`).
+- a progress line on stderr, only when stderr is a terminal (:class:`Progress`);
+- JSON summaries without NaN or Inf (:func:`finite_or_none`) and the matplotlib plots of
+  ``--plot`` (:func:`need_matplotlib` before any work, :func:`pyplot`).
 
 Bags are read and written with the ``rosbags`` library (ternaris/rosbags); no ROS install
 is needed (the MCAP reader uses rosbags' own zstd and lz4 dependencies). Timestamps are
@@ -18,6 +21,7 @@ integer nanoseconds.
 """
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import signal
@@ -137,6 +141,37 @@ def one_line(e: BaseException | str) -> str:
     """The text of an exception on one line."""
     text = str(e) if not isinstance(e, BaseException) or e.args else type(e).__name__
     return " ".join(text.split()) or type(e).__name__
+
+
+def finite_or_none(x):
+    """``x`` for JSON: non-finite floats become None (JSON has no NaN or Inf), numpy scalars
+    Python ones, through dicts, lists and tuples (tuples become lists)."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: finite_or_none(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [finite_or_none(v) for v in x]
+    if isinstance(x, np.generic):
+        return finite_or_none(x.item())
+    return x
+
+
+def need_matplotlib():
+    """Fail fast (before any work) when --plot is asked for without matplotlib."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise CliError("--plot needs matplotlib, which is not installed: "
+                       "pip install 'sins_align[plot]' (or pip install matplotlib)") from None
+
+
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (files, no display)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
 
 
 # ----------------------------------------------------------------------------- outputs

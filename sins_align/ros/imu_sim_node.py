@@ -21,111 +21,36 @@ import math
 import sys
 import time
 
-from sins_align.ros.params import PARAMS_BY_NAME, check_param
-from sins_align.sim.simulator import SWAY_PRESETS
-from sins_align.core.specs import DPH, DPSH, UG, UG_PSHZ
+from sins_align.ros.params import SIM_PARAMS, param_help, sensor_specs
+from sins_align.ros.runtime import (SPIN_PERIOD, build_arg_parser, declare_params, node_main,
+                                    refuse_start)
 
 #: The node's name: its executable's (``ros2 param list /imu_sim_node``).
 NODE_NAME = "imu_sim_node"
 
-#: name -> (default, description, low, high or choices). All read-only (set at startup).
-SIM_PARAMS: dict[str, tuple] = {
-    "rate": (100.0, "IMU sample rate, Hz (data time).", 0.1, 100000.0),
-    "latitude": (34.0, "Geodetic latitude, deg.", -90.0, 90.0),
-    "height": (0.0, "Height above the WGS-84 ellipsoid, m.", -10000.0, 100000.0),
-    "rpy": ([0.0, 0.0, 0.0], "True mean attitude: REP-103 roll, pitch, yaw of the IMU frame "
-            "in ENU, deg.", None, None),
-    "grade": ("navigation", "Sensor grade preset.", tuple(PARAMS_BY_NAME["grade"].choices)),
-    "gyro_bias": (-1.0, "Gyro bias 1-sigma, deg/h (-1 = from grade).", -1.0, 1e6),
-    "gyro_arw": (-1.0, "Gyro angle random walk, deg/sqrt(h) (-1 = from grade).", -1.0, 1e6),
-    "accel_bias": (-1.0, "Accelerometer bias 1-sigma, micro-g (-1 = from grade).", -1.0, 1e6),
-    "accel_vrw": (-1.0, "Accelerometer white noise, micro-g/sqrt(Hz) (-1 = from grade).",
-                  -1.0, 1e6),
-    "sway": ("none", "Sway preset: none, car (parked car being boarded), ship (moored ship).",
-             tuple(SWAY_PRESETS)),
-    "sway_amplitude": (1.0, "Factor on the sway preset amplitudes.", 0.0, 100.0),
-    "seed": (0, "Random seed (-1 = fresh entropy).", -1, 2**31 - 1),
-    "speed": (1.0, "Data seconds published per wall second.", 0.001, 1000.0),
-    "duration": (0.0, "Seconds of data to publish (0 = forever).", 0.0, 1e9),
-    "exit_when_done": (False, "Exit once duration seconds of data were published.", None, None),
-    "frame_id": ("imu_link", "header.frame_id of the IMU messages.", None, None),
-    "t0": (-1.0, "Data time of the start, s since the epoch (-1 = the node clock at "
-           "startup).", -1.0, 4e9),
-    "batch_rate": (50.0, "Wall-clock rate of the publishing timer, Hz; each tick publishes "
-                   "the samples that are due.", 1.0, 1000.0),
-    "publish_truth": (True, "Publish imu_sim/truth.", None, None),
-    "wait_for_subscribers": (False, "Start the data clock only once imu/data_raw (and "
-                             "imu_sim/truth, when published) have a subscriber.", None, None),
-}
 
-
-def check_sim_param(name: str, value) -> str | None:
-    """One-line reason why ``value`` is bad for simulator parameter ``name``, or None."""
-    default, _, *rng = SIM_PARAMS[name]
-    if name in ("latitude", "height", "grade", "gyro_bias", "gyro_arw", "accel_bias",
-                "accel_vrw"):
-        return check_param(name, value)
-    if isinstance(default, bool):
-        return None if isinstance(value, bool) else f"{name} must be true or false"
-    if isinstance(default, str):
-        if not isinstance(value, str) or not value:
-            return f"{name} must be a non-empty string"
-        if rng and isinstance(rng[0], tuple) and value not in rng[0]:
-            return f"{name} must be one of {', '.join(rng[0])}, got '{value}'"
-        return None
-    if isinstance(default, list):
-        try:
-            vals = [float(x) for x in value]
-        except (TypeError, ValueError):
-            return f"{name} must be a list of numbers"
-        if len(vals) != 3 or not all(math.isfinite(x) for x in vals):
-            return f"{name} must be 3 finite angles in deg, got {list(value)}"
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return f"{name} must be a number"
-    if isinstance(default, int) and not float(value).is_integer():
-        return f"{name} must be an integer"
-    lo, hi = rng
-    if not (math.isfinite(value) and lo <= value <= hi):
-        return f"{name} must be within [{lo:g}, {hi:g}], got {value!r}"
-    if name == "t0" and value < 0 and value != -1:
-        return "t0 must be -1 (node clock) or >= 0 s"
-    return None
-
-
-def _make_node_class():
+def make_node_class():
+    """Define the rclpy node class (rclpy is imported only after --help was handled)."""
     from geometry_msgs.msg import QuaternionStamped
-    from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.clock import Clock, ClockType
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
     from rclpy.task import Future
     from sensor_msgs.msg import Imu
 
-    from sins_align.ros.align_node import declare_typed, refuse_start
     from sins_align.sim.simulator import ImuSimulator
-    from sins_align.core.specs import grade_specs
 
     class ImuSimNode(Node):
         """Publishes ImuSimulator samples in data time, ``speed`` x faster than wall time."""
 
         def __init__(self, **kwargs):
             super().__init__(NODE_NAME, **kwargs)
-            values, reason = {}, None
-            for name, (default, text, *_) in SIM_PARAMS.items():
-                # statically typed: rate:=100 is the double 100.0 (align_node.declare_typed)
-                d = ParameterDescriptor(description=text, read_only=True)
-                value, reason = declare_typed(
-                    self, name, default, d, lambda v, name=name: check_sim_param(name, v))
-                if reason:
-                    break
-                if isinstance(default, list):
-                    value = [float(x) for x in value]
-                values[name] = value
+            # statically typed from the schema: rate:=100 is the double 100.0
+            values, reason = declare_params(self, SIM_PARAMS)
             sim = None
             if reason is None:
                 try:
-                    sim = self._make_sim(values, grade_specs)
+                    sim = self._make_sim(values)
                 except ValueError as e:
                     reason = str(e)
             if reason is not None:
@@ -158,14 +83,9 @@ def _make_node_class():
                 + (f"{values['duration']:g} s of data" if self.total else "until stopped"))
 
         @staticmethod
-        def _make_sim(v, grade_specs):
-            specs = grade_specs(v["grade"])
-            units = {"gyro_bias": DPH, "gyro_arw": DPSH, "accel_bias": UG, "accel_vrw": UG_PSHZ}
-            over = {k: v[k] * u for k, u in units.items() if v[k] >= 0.0}
-            if over:
-                specs = specs.with_(**over)
+        def _make_sim(v):
             return ImuSimulator(rate=v["rate"], lat_deg=v["latitude"], height_m=v["height"],
-                                rpy_deg=v["rpy"], specs=specs, sway=v["sway"],
+                                rpy_deg=v["rpy"], specs=sensor_specs(v), sway=v["sway"],
                                 sway_amplitude=v["sway_amplitude"],
                                 seed=None if v["seed"] < 0 else int(v["seed"]))
 
@@ -229,25 +149,20 @@ def _make_node_class():
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``imu_sim_node`` / ``python -m sins_align.ros.imu_sim_node``."""
-    from sins_align.ros.align_node import build_arg_parser, node_main
-
-    lines = ["parameters (all read-only; --ros-args -p name:=value):"]
-    lines += [f"  {k} (default {v[0]!r}): {v[1]}" for k, v in SIM_PARAMS.items()]
     parser = build_arg_parser(
         "imu_sim_node",
         "Simulated IMU on a quasi-static base: publishes imu/data_raw (sensor_msgs/Imu) and "
         "the true attitude on imu_sim/truth (geometry_msgs/QuaternionStamped).",
-        "\n".join(lines) + "\n\nexample:\n  ros2 run sins_align imu_sim_node --ros-args "
+        param_help(SIM_PARAMS, "parameters (all read-only; --ros-args -p name:=value):")
+        + "\n\nexample:\n  ros2 run sins_align imu_sim_node --ros-args "
         "-p rpy:='[2.0, -1.0, 30.0]' -p speed:=5.0 -p sway:=car")
-    return node_main("imu_sim_node", parser, args, _make_node_class, spin_until_done)
+    return node_main("imu_sim_node", parser, args, make_node_class, spin_until_done)
 
 
 def spin_until_done(node, stop) -> None:
     """Spin ``node`` until it is done (``exit_when_done``), ``stop`` is set (SIGINT, SIGTERM,
     SIGHUP) or its context shuts down."""
     from rclpy.executors import SingleThreadedExecutor
-
-    from sins_align.ros.align_node import SPIN_PERIOD
 
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)

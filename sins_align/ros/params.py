@@ -1,20 +1,25 @@
-"""Parameters shared by align_node and the replay tool: names, units, defaults, ranges.
+"""The one parameter schema of align_node, the replay tool and imu_sim_node.
 
-One table (:data:`PARAMS`) defines every alignment parameter. The node declares ROS
-parameters from it (with descriptors); the replay tool reads the node's YAML file through
-:func:`load_params_yaml`; both turn the values into an :class:`AlignConfig` with
-:func:`config_from_params`. No ROS imports here.
+Every parameter is a :class:`ParamSpec` (name, default, text, range or choices, read-only or
+settable at run time) in one of three scopes: ``align`` (:data:`PARAMS`, the estimator's
+:class:`AlignConfig`), ``node`` (:data:`NODE_PARAMS`, align_node's own) and ``sim``
+(:data:`SIM_PARAMS`, imu_sim_node's). The nodes declare theirs from it
+(:func:`sins_align.ros.runtime.declare_params`) and list them in ``--help``
+(:func:`param_help`); every value is checked by :func:`check_param`. The replay tool reads the
+node's YAML file through :func:`load_params_yaml`; node and replay turn the values into an
+:class:`AlignConfig` with :func:`config_from_params`. No ROS imports here.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from sins_align.estimators.quasi_static import AlignConfig
 from sins_align.core.models import MODELS
 from sins_align.core.specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
+from sins_align.sim.simulator import SWAY_PRESETS
 
 #: The node's name: its executable's (``ros2 param list /align_node``). The shipped
 #: config/align.yaml is keyed ``/**`` so that it applies to a renamed node too.
@@ -22,10 +27,19 @@ NODE_NAME = "align_node"
 #: The node's name before 0.1.0 left it (a params file keyed with it no longer applies).
 OLD_NODE_NAME = "sins_align"
 
+#: The scopes of :class:`ParamSpec`: the estimator's, align_node's own, imu_sim_node's.
+SCOPES = ("align", "node", "sim")
+
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter: ROS name, default (its type is the parameter type), text, range."""
+    """One parameter: ROS name, default (its type is the parameter type: bool, str, float,
+    int or a list of floats), text, range or choices, read-only or [runtime], scope.
+
+    A float parameter whose default is NaN is required (the node refuses to start without
+    it). A list is 3 finite numbers, or empty when ``allow_empty``. ``rule`` is a further
+    check beyond type and range (a one-line reason, or None).
+    """
 
     name: str
     default: Any
@@ -34,6 +48,17 @@ class ParamSpec:
     high: float | None = None
     choices: tuple[str, ...] | None = None
     read_only: bool = True
+    scope: str = "align"
+    allow_empty: bool = False
+    rule: Callable[[Any], str | None] | None = None
+
+    @property
+    def required(self) -> bool:
+        return isinstance(self.default, float) and math.isnan(self.default)
+
+
+def _scoped(scope: str, *specs: ParamSpec) -> tuple[ParamSpec, ...]:
+    return tuple(replace(p, scope=scope) for p in specs)
 
 
 PARAMS: tuple[ParamSpec, ...] = (
@@ -42,7 +67,8 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("model", "constant", "Error model: constant (paper Model 3), conventional "
               "(Model 1) or se3 (Model 2).", choices=MODELS),
     ParamSpec("initial_rpy", [0.0, 0.0, 0.0], "Initial REP-103 roll, pitch, yaw of the IMU frame "
-              "in ENU, deg. Any value converges; it only shortens the transient."),
+              "in ENU, deg. Any value converges; it only shortens the transient.",
+              allow_empty=True),
     ParamSpec("grade", "navigation", "Sensor grade preset for the specs below: navigation, "
               "tactical or consumer.", choices=tuple(GRADES)),
     ParamSpec("gyro_bias", -1.0, "Gyro bias 1-sigma, deg/h (-1 = from grade).", -1.0, 1e6),
@@ -86,6 +112,56 @@ PARAMS: tuple[ParamSpec, ...] = (
 
 PARAMS_BY_NAME = {p.name: p for p in PARAMS}
 
+#: align_node's own parameters (not the estimator's); replay takes euler_rate from the YAML.
+NODE_PARAMS: tuple[ParamSpec, ...] = _scoped(
+    "node",
+    ParamSpec("euler_rate", 10.0, "Publishing rate of alignment/euler_deg, Hz.", 0.1, 1000.0,
+              read_only=False),
+    ParamSpec("queue_size", 1000, "History depth of the imu/data_raw subscription (sensor-data "
+              "QoS otherwise): covers the pause of the backtrack pass; also the history depth "
+              "of the imu/data publisher.", 5, 100000),
+)
+
+#: Every parameter align_node declares, in its order (the estimator's, then its own).
+ALIGN_NODE_PARAMS = PARAMS + NODE_PARAMS
+
+
+def _check_t0(value) -> str | None:
+    return "t0 must be -1 (node clock) or >= 0 s" if -1 < value < 0 else None
+
+
+#: imu_sim_node's parameters, all read-only (set at startup). Site and sensor ones share the
+#: estimator's ranges.
+SIM_PARAMS: tuple[ParamSpec, ...] = _scoped(
+    "sim",
+    ParamSpec("rate", 100.0, "IMU sample rate, Hz (data time).", 0.1, 100000.0),
+    replace(PARAMS_BY_NAME["latitude"], default=34.0, description="Geodetic latitude, deg."),
+    PARAMS_BY_NAME["height"],
+    ParamSpec("rpy", [0.0, 0.0, 0.0], "True mean attitude: REP-103 roll, pitch, yaw of the IMU "
+              "frame in ENU, deg."),
+    replace(PARAMS_BY_NAME["grade"], description="Sensor grade preset."),
+    *(PARAMS_BY_NAME[n] for n in ("gyro_bias", "gyro_arw", "accel_bias", "accel_vrw")),
+    ParamSpec("sway", "none", "Sway preset: none, car (parked car being boarded), ship (moored "
+              "ship).", choices=tuple(SWAY_PRESETS)),
+    ParamSpec("sway_amplitude", 1.0, "Factor on the sway preset amplitudes.", 0.0, 100.0),
+    ParamSpec("seed", 0, "Random seed (-1 = fresh entropy).", -1, 2**31 - 1),
+    ParamSpec("speed", 1.0, "Data seconds published per wall second.", 0.001, 1000.0),
+    ParamSpec("duration", 0.0, "Seconds of data to publish (0 = forever).", 0.0, 1e9),
+    ParamSpec("exit_when_done", False, "Exit once duration seconds of data were published."),
+    ParamSpec("frame_id", "imu_link", "header.frame_id of the IMU messages."),
+    ParamSpec("t0", -1.0, "Data time of the start, s since the epoch (-1 = the node clock at "
+              "startup).", -1.0, 4e9, rule=_check_t0),
+    ParamSpec("batch_rate", 50.0, "Wall-clock rate of the publishing timer, Hz; each tick "
+              "publishes the samples that are due.", 1.0, 1000.0),
+    ParamSpec("publish_truth", True, "Publish imu_sim/truth."),
+    ParamSpec("wait_for_subscribers", False, "Start the data clock only once imu/data_raw (and "
+              "imu_sim/truth, when published) have a subscriber."),
+)
+
+#: The whole schema: every parameter of every scope.
+SCHEMA: tuple[ParamSpec, ...] = ALIGN_NODE_PARAMS + SIM_PARAMS
+_BY_SCOPE = {(p.scope, p.name): p for p in SCHEMA}
+
 _TO_CONFIG = {
     "height": "height_m", "model": "model", "velocity_noise": "coarse_velocity_noise",
     "coarse_update_period": "coarse_update_period",
@@ -100,9 +176,15 @@ _TO_CONFIG = {
 _SPEC_UNITS = {"gyro_bias": DPH, "gyro_arw": DPSH, "accel_bias": UG, "accel_vrw": UG_PSHZ}
 
 
-def check_param(name: str, value: Any) -> str | None:
-    """Return a one-line reason why ``value`` is not acceptable for ``name``, or None."""
-    spec = PARAMS_BY_NAME.get(name)
+def param_spec(name: str, scope: str = "align") -> ParamSpec | None:
+    """The :class:`ParamSpec` of ``name`` in ``scope`` (one of :data:`SCOPES`), or None."""
+    return _BY_SCOPE.get((scope, name))
+
+
+def check_param(name: str, value: Any, scope: str = "align") -> str | None:
+    """Return a one-line reason why ``value`` is not acceptable for parameter ``name`` of
+    ``scope`` (one of :data:`SCOPES`), or None."""
+    spec = param_spec(name, scope)
     if spec is None:
         return f"unknown parameter '{name}'"
     d = spec.default
@@ -113,31 +195,56 @@ def check_param(name: str, value: Any) -> str | None:
             return f"{name} must be a string"
         if spec.choices and value not in spec.choices:
             return f"{name} must be one of {', '.join(spec.choices)}, got '{value}'"
+        if not value:
+            return f"{name} must be a non-empty string"
         return None
     if isinstance(d, list):
         try:
             vals = [float(x) for x in value]
         except (TypeError, ValueError):
             return f"{name} must be a list of numbers"
-        if len(vals) not in (0, 3) or not all(math.isfinite(x) for x in vals):
-            return f"{name} must be 3 finite angles in deg (or empty), got {list(value)}"
+        if len(vals) not in ((0, 3) if spec.allow_empty else (3,)) \
+                or not all(math.isfinite(x) for x in vals):
+            empty = " (or empty)" if spec.allow_empty else ""
+            return f"{name} must be 3 finite angles in deg{empty}, got {list(value)}"
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return f"{name} must be a number"
     v = float(value)
     if not math.isfinite(v):
-        if name == "latitude" and math.isnan(v):
-            return "latitude is required"
+        if spec.required and math.isnan(v):
+            return f"{name} is required"
         return f"{name} must be finite, got {v:g}"
+    if isinstance(d, int) and not v.is_integer():
+        return f"{name} must be an integer"
     if (spec.low is not None and v < spec.low) or (spec.high is not None and v > spec.high):
-        return f"{name} must be within [{spec.low:g}, {spec.high:g}], got {v:g}"
-    return None
+        fmt = "d" if isinstance(d, int) else "g"     # integers in full (seed)
+        low, high, v = (type(d)(x) for x in (spec.low, spec.high, v))
+        return f"{name} must be within [{low:{fmt}}, {high:{fmt}}], got {v:{fmt}}"
+    return spec.rule(v) if spec.rule else None
+
+
+def param_help(specs: tuple[ParamSpec, ...], heading: str) -> str:
+    """The parameters' lines of a node's ``--help``: name, default, [runtime], text."""
+    lines = [heading]
+    for p in specs:
+        runtime = "" if p.read_only else " [runtime]"
+        lines.append(f"  {p.name} (default {p.default!r}){runtime}: {p.description}")
+    return "\n".join(lines)
 
 
 def defaults() -> dict[str, Any]:
     """Default value of every parameter (latitude is NaN: required)."""
     return {p.name: (list(p.default) if isinstance(p.default, list) else p.default)
             for p in PARAMS}
+
+
+def sensor_specs(values: dict[str, Any]):
+    """The :class:`~sins_align.core.specs.SensorSpecs` of parameter values: the ``grade``
+    preset with ``gyro_bias``, ``gyro_arw``, ``accel_bias``, ``accel_vrw`` where >= 0."""
+    specs = grade_specs(values["grade"])
+    over = {k: float(values[k]) * unit for k, unit in _SPEC_UNITS.items() if values[k] >= 0.0}
+    return specs.with_(**over) if over else specs
 
 
 def config_from_params(values: dict[str, Any]) -> AlignConfig:
@@ -154,10 +261,7 @@ def config_from_params(values: dict[str, Any]) -> AlignConfig:
         reason = check_param(name, value)
         if reason:
             raise ValueError(reason)
-    specs = grade_specs(merged["grade"])
-    over = {k: float(merged[k]) * unit for k, unit in _SPEC_UNITS.items() if merged[k] >= 0.0}
-    if over:
-        specs = specs.with_(**over)
+    specs = sensor_specs(merged)
     kw = {cfg: merged[name] for name, cfg in _TO_CONFIG.items()}
     rpy = [float(x) for x in merged["initial_rpy"]]
     rate = float(merged["rate"])

@@ -59,9 +59,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from sins_align.io.bagio import AtomicOutput, CliError, check_new_output, cli_main
+from sins_align.io.bagio import (AtomicOutput, CliError, check_new_output, cli_main,
+                                 finite_or_none, need_matplotlib, pyplot)
 from sins_align.tools.simulate import specs_from_args
 from sins_align.core.earth import gravity
+from sins_align.core.models import MODELS
 from sins_align.estimators.quasi_static import AlignConfig, AlignmentFilter
 from sins_align.core.rotation import attitude_error, dcm_from_quat, dcm_from_rpy, rpy_from_dcm
 from sins_align.core.specs import (DEG, DPH, DPSH, GRADES, UG, UG_PSHZ, SensorSpecs, grade_specs,
@@ -69,7 +71,6 @@ from sins_align.core.specs import (DEG, DPH, DPSH, GRADES, UG, UG_PSHZ, SensorSp
 
 PROG = "montecarlo"
 AXES = ("E", "N", "U")
-MODELS = ("constant", "conventional", "se3")
 #: Paper reference scenario (ALGORITHM.md, paper section 3.1).
 PAPER = dict(latitude=34.0, height=0.0, rate=100.0, grade="navigation", true_rpy=(0.0, 0.0, 0.0),
              initial_error=(89.0, 89.0, 179.0), fixed_biases=True, model="all", one_pass=True)
@@ -240,8 +241,8 @@ class CurveStats:
             "settle": {
                 "tolerance": self.tol,
                 "axes": ["E", "N", "U", "all"],
-                "median_s": [_finite(v) for v in np.median(st, axis=0)] if len(st) else None,
-                "max_s": [_finite(v) for v in st.max(axis=0)] if len(st) else None,
+                "median_s": [finite_or_none(v) for v in np.median(st, axis=0)] if len(st) else None,
+                "max_s": [finite_or_none(v) for v in st.max(axis=0)] if len(st) else None,
                 "settled_runs": np.isfinite(st).sum(axis=0).tolist(),
             },
             "reinflated_runs": self.reinflated_runs,
@@ -250,24 +251,6 @@ class CurveStats:
             "sample_runs_per_s": (self.samples / self.filter_time
                                   if self.filter_time > 0 else None),
         }
-
-
-def _finite(v) -> float | None:
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
-def _json_safe(x):
-    """Replace non-finite floats by None (JSON has no inf / nan)."""
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, (float, np.floating)):
-        return _finite(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
 
 
 # ----------------------------------------------------------------------------- scenario
@@ -472,7 +455,7 @@ def run_montecarlo(scn: Scenario, curves: Sequence[Curve], chunk: int | None = N
     wall = time.perf_counter() - t_wall
     total_samples = sum(s.samples for s in stats.values())
     filt_time = sum(s.filter_time for s in stats.values())
-    return _json_safe({
+    return finite_or_none({
         "tool": "sins_align.tools.montecarlo",
         "schema_version": 1,
         "scenario": scn.to_json(),
@@ -524,22 +507,11 @@ def write_json(path: Path, res: dict[str, Any]):
         fh.write("\n")
 
 
-def need_matplotlib():
-    """Fail fast (before any work) when --plot is asked for without matplotlib."""
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise CliError("--plot needs matplotlib, which is not installed: "
-                       "pip install 'sins_align[plot]' (or pip install matplotlib)") from None
-
-
 def write_plot(path: Path, res: dict[str, Any]):
     """The paper's figures 1-3: |phi| against time for each curve, one panel per E/N/U axis
     (log scale), RMS over the runs (solid) and the max over the runs (faint), with the
     limit accuracy (dashed) and the settling band 1.2 x limit (dotted)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     s = res["scenario"]
     lim = res["limit"]["rms_abs_deg"]

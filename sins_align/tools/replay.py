@@ -85,15 +85,17 @@ import numpy as np
 
 from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks,
                                  check_bag_dir_name, check_new_output, cli_main, deserialize,
-                                 one_line, open_reader, open_writer, qos_profile,
-                                 read_message_chunks, signals_deferred)
-from sins_align.io.cdr import ImuBatch, decode_imu_array, decode_imu_batch, reader_imu_layout
+                                 finite_or_none, need_matplotlib, one_line, open_reader,
+                                 open_writer, pyplot, qos_profile, read_message_chunks,
+                                 signals_deferred)
+from sins_align.io.cdr import (IMU_TYPE, ImuBatch, decode_imu_array, decode_imu_batch,
+                               reader_imu_layout)
 from sins_align.estimators.quasi_static import AlignConfig, Aligner
 from sins_align.estimators.session import AlignmentSession
-from sins_align.ros.align_node import NODE_PARAMS
 from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_sample,
                       node_diagnostics)
-from sins_align.ros.params import NODE_NAME, config_from_params, defaults, load_params_yaml
+from sins_align.ros.params import (NODE_NAME, NODE_PARAMS, check_param, config_from_params,
+                                   defaults, load_params_yaml, param_spec)
 from sins_align.core.rotation import attitude_error, dcm_from_quat, rpy_from_dcm, so3_exp, so3_log
 from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ
 
@@ -105,12 +107,12 @@ ALIGNED_TOPIC = "/alignment/aligned"
 EULER_TOPIC = "/alignment/euler_deg"
 DIAG_TOPIC = "/diagnostics"
 #: Publication periods in data time, ns (Euler: 1 / euler_rate, default 10 Hz).
-EULER_PERIOD_NS = int(round(1e9 / NODE_PARAMS["euler_rate"][0]))
+EULER_RATE = param_spec("euler_rate", "node").default
+EULER_PERIOD_NS = int(round(1e9 / EULER_RATE))
 DIAG_PERIOD_NS = 1_000_000_000
 #: DiagnosticStatus.name, as the node names it.
 DIAG_NAME = f"{NODE_NAME}: alignment"
 
-IMU_TYPE = "sensor_msgs/msg/Imu"
 TRUTH_TYPE = "geometry_msgs/msg/QuaternionStamped"
 NS = 1_000_000_000
 
@@ -164,8 +166,9 @@ def params_from_args(args) -> tuple[dict[str, Any], dict[str, Any]]:
             loaded = load_params_yaml(args.params)
         except ValueError as e:
             raise CliError(one_line(e)) from None
+        node_names = {p.name for p in NODE_PARAMS} | {"use_sim_time"}
         for k, v in loaded.items():
-            (node_only if k in NODE_PARAMS or k == "use_sim_time" else values)[k] = v
+            (node_only if k in node_names else values)[k] = v
         lat = values.get("latitude")
         if isinstance(lat, float) and math.isnan(lat):
             raise CliError(f"latitude in {args.params} must be a finite number, got nan")
@@ -180,11 +183,9 @@ def params_from_args(args) -> tuple[dict[str, Any], dict[str, Any]]:
             raise CliError(f"--{flag} must be a finite number, got {v}")
     if args.initial_rpy is not None:
         values["initial_rpy"] = [float(a) for a in args.initial_rpy]
-    rate = node_only.get("euler_rate", NODE_PARAMS["euler_rate"][0])
-    lo, hi = NODE_PARAMS["euler_rate"][2:4]
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:
-        raise CliError(f"bad parameters: euler_rate must be within [{lo:g}, {hi:g}], "
-                       f"got {rate!r}")
+    reason = check_param("euler_rate", node_only.get("euler_rate", EULER_RATE), "node")
+    if reason:
+        raise CliError(f"bad parameters: {reason}")
     return values, node_only
 
 
@@ -314,18 +315,6 @@ class DecimatedSeries:
                 self.rows = self.rows[::2]
                 self.stride *= 2
         self._n += 1
-
-
-def _finite_or_none(x):
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {k: _finite_or_none(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_finite_or_none(v) for v in x]
-    if isinstance(x, np.generic):
-        return _finite_or_none(x.item())
-    return x
 
 
 def _stamp_ns(msg) -> int:
@@ -854,23 +843,12 @@ def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = N
     summ = session.summary(config_echo(config, params))
     summ = {"bag": str(bag), "topic": topic, "truth_topic": truth_topic, **summ,
             "wall_time_s": wall, "messages_per_s": n / wall if wall > 0 else None}
-    return _finite_or_none(summ), session
+    return finite_or_none(summ), session
 
 
 # ----------------------------------------------------------------------------- plot
-def _need_matplotlib():
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise CliError("--plot needs matplotlib, which is not installed: "
-                       "pip install matplotlib") from None
-
-
 def write_plot(path: Path, session: ReplaySession, summary: dict[str, Any]):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     rows = np.array(session.series.rows, dtype=float).reshape(-1, 11)
     t = rows[:, 0]
     truth = session.with_truth
@@ -958,7 +936,7 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
 def run(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.plot:
-        _need_matplotlib()
+        need_matplotlib()
     if not Path(args.bag).exists():
         raise CliError(f"bag {args.bag} does not exist")
     outs = {}
@@ -976,7 +954,7 @@ def run(argv: Sequence[str] | None = None) -> int:
     values, node_only = params_from_args(args)
     config = config_or_error(values)
     params = merged_params(values)
-    euler_rate = float(node_only.get("euler_rate", NODE_PARAMS["euler_rate"][0]))
+    euler_rate = float(node_only.get("euler_rate", EULER_RATE))
 
     atomic = {w: AtomicOutput(p, is_dir=d, force=args.force) for w, (p, d) in outs.items()}
     try:
