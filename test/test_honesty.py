@@ -71,6 +71,23 @@ def test_lost_samples_in_sway_grow_the_covariance():
     assert r["n_viol_4sigma"] == 0 and r["aligned_wrong"] == 0
 
 
+@pytest.mark.parametrize("name,seed,most", [
+    ("car_lost_single", 0, 0.07), ("car_loss_1pct", 0, 0.15),
+    ("car_bursts5_every10s", 0, 0.65), ("car_bursts5_every10s", 1, 0.65),
+    ("car_bursts5_every10s", 2, 0.65)])
+def test_lost_samples_in_smooth_sway_cost_little_heading(name, seed, most):
+    """Car sway (smooth, 1-3 Hz) with samples lost: a hole is bridged by the mean of the
+    samples on either side (the mid bridge) when that errs less on the recent motion, so
+    the covariance grows by little and the heading std at the end stays near the complete
+    run's (0.05 deg): 0.054, 0.10 and 0.18-0.49 deg here, where the recent mean or the next
+    sample held made 0.081, 0.23 and 0.26-2.4 deg; honestly."""
+    r = run_case(CASES[name], seed=seed)
+    assert r["final_std_deg"][2] <= most, r["final_std_deg"]
+    assert r["n_viol_4sigma"] == 0 and r["aligned_wrong"] == 0
+    if name == "car_lost_single":
+        assert r["t_aligned_first"] is not None
+
+
 @pytest.mark.parametrize("seed", range(12))
 def test_any_start_is_honest_in_the_first_30_s(seed):
     """Starts drawn uniformly on SO(3) (the truth fixed, the initial guess random, upside down

@@ -9,6 +9,7 @@ same services).
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -250,7 +251,12 @@ def test_stopping_align_node_while_data_flows_is_clean(probe, tmp_path):
                 node.stop()
             err = node.stderr()
             assert rc == 0, f"{name}: exit {rc}\n{node.output()}"
-            bad = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("[INFO]")]
+            # a loaded machine can hold the callback long enough during the backtrack (at
+            # 60 s of data, 6 s into this 10x-speed stream) for the 1000-message queue to
+            # overflow: the data path then warns of a time jump. That is not the shutdown
+            # this test is about; anything else on stderr is
+            bad = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("[INFO]")
+                   and not re.search(r"\]: rejected \d+ sample\(s\): time_jump ", ln)]
             assert not bad, f"{name} (trial {i}):\n{err}"
         assert sim.alive(), sim.output()
         assert sim.stop() == 0, sim.output()

@@ -6,7 +6,8 @@ bursts of 0.02-0.5 s (seeded). A run with holes must end within 3 sigma (its pub
 std, per axis) of the complete run's result; and its ``aligned`` flag must never be true
 while its attitude, compared with the complete run's at the same instant, is off by more
 than 3 sigma of its published covariance. The report (``-s``) also gives the difference
-in the complete run's sigma: what the holes cost in precision.
+in the complete run's sigma: what the holes cost in precision; the heading std at the end
+is held to what the estimator reaches (HEADING_STD_MOST).
 """
 from __future__ import annotations
 
@@ -84,6 +85,10 @@ def full_at(log, full_rec, j: int, k: int) -> np.ndarray:
 
 
 CASES = [(kind, frac) for kind in ("random", "bursts") for frac in (0.01, 0.05, 0.10)]
+#: deg, heading std at the end: what the holes cost (0.047 deg with every sample), with a
+#: margin of about 15 % over what the estimator reaches today
+HEADING_STD_MOST = {("random", 0.01): 0.125, ("random", 0.05): 0.27, ("random", 0.10): 0.39,
+                    ("bursts", 0.01): 0.14, ("bursts", 0.05): 0.36, ("bursts", 0.10): 1.45}
 
 
 @pytest.mark.parametrize("kind,fraction", CASES, ids=[f"{k}-{int(f * 100)}pct" for k, f in CASES])
@@ -117,3 +122,4 @@ def test_dropped_samples_end_within_3_sigma_and_never_aligned_while_wrong(log, f
               f"aligned at the end {al.aligned}, in {aligned_blocks} of {len(rec)} blocks")
     print(report)
     assert np.all(np.abs(e) <= 3 * sd_drop), report
+    assert sd_drop[2] <= HEADING_STD_MOST[kind, fraction], report

@@ -511,10 +511,11 @@ class Aligner:
                 hole, _, bridge = rec.bridge_errors(missing, nom, w, f, held=False)
             else:
                 # a short hole: for the rate and the specific force each, the next sample held
-                # over it or the recent mean standing in for the missing samples, whichever
-                # errs less on the recent motion (held for a smooth sway, the mean when noise
-                # dominates: holding one noisy sample multiplies its noise by the hole's
-                # length). The step then integrates the interval's mean of the two.
+                # over it or the means bridge (the recent mean, or the mean of the samples on
+                # either side) standing in for the missing samples, whichever errs less on the
+                # recent motion (held for a smooth sway, a mean when noise dominates: holding
+                # one noisy sample multiplies its noise by the hole's length). The step then
+                # integrates the interval's mean of the two.
                 means, held, (wm, fm) = rec.bridge_errors(missing, nom, w, f)
                 hole = list(held)
                 if means[0] < held[0]:

@@ -89,8 +89,9 @@ class RecentMotion:
         """The bridges of a hole of ``hole`` seconds before the sample (w_next, f_next) and
         their errors: ``(means, held, (w_mean, f_mean))`` with ``means`` and ``held`` the
         (attitude rad^2, velocity (m/s)^2) variance per axis of each bridge (``held`` None
-        when not asked for) and the last second's mean rate and specific force, the means
-        bridge itself. The errors are measured on the motion of the last WINDOW seconds (the
+        when not asked for) and the constant rate and specific force of the ``means``
+        bridge: for each, the last second's mean or the mid bridge, whichever errs less (see
+        below). The errors are measured on the motion of the last WINDOW seconds (the
         largest axis counts for all three, the body axes not being the ENU ones).
 
         Each bridge is replayed at every position of the window, and the RMS of its error
@@ -107,9 +108,22 @@ class RecentMotion:
           own range), grown with the hole's length beyond the window for a wander that is
           not stationary. At the hole itself, the mean of the samples on either side less
           the last second's mean, over the hole, is taken when larger.
+        - mid: the mean of the last sample and the next one stands in for the missing ones
+          (a linear interpolation's mean: exact for a ramp, and for a smooth sway far
+          better than either bridge above), replayed as the held one; at the hole itself a
+          change between the two samples at any instant of the hole (a shove) errs by at
+          most ``|x_next - x_last| nom m / 2``, taken when larger. It replaces the recent
+          mean (for the rate and the specific force separately) when both its replayed
+          error and its variance are the smaller: the replay decides, so two noisy samples
+          never stand in for a mean the edge term alone made look worse.
 
-        Noise counts as motion here (the bridge's error against the complete data), which
-        errs on the safe side: the truth has no sensor noise in it.
+        Noise counts as motion here (the bridge's error against the complete data). Only
+        white noise whose integral wanders (ARW, VRW) is absent from the truth over a hole,
+        and the process noise the filter adds over the hole already holds it at the specs'
+        level. The sample-to-sample scatter of real data is mostly quantization, dither and
+        vibration whose integral stays bounded (the laser-gyro log: 100x the specs' ARW per
+        sample, its sums over 20 s growing far slower than a random walk's): a lost sample
+        loses that part for good, an error like the motion's, so nothing is subtracted.
         """
         second = self.last(1.0)[:, 1:7].mean(axis=0)        # the means bridge
         rows = self.last(self.WINDOW)
@@ -118,8 +132,10 @@ class RecentMotion:
             return (0.0, 0.0), ((0.0, 0.0) if held else None), (second[:3], second[3:])
         T = float(rows[:, 0].sum())
         m = max(1, int(round(hole / nom)))
-        means, holds = [], []
-        for x, nxt in ((rows[:, 1:4], w_next), (rows[:, 4:7], f_next)):
+        means, holds, values = [], [], []
+        for x, nxt, mean in ((rows[:, 1:4], w_next, second[:3]), (rows[:, 4:7], f_next,
+                                                                  second[3:])):
+            nxt = np.asarray(nxt, dtype=float)
             d = x - (x * rows[:, :1]).sum(0) / T
             wander = np.cumsum(d * rows[:, :1], axis=0)
             spread = float((wander.max(0) - wander.min(0)).max())
@@ -131,20 +147,34 @@ class RecentMotion:
                 bound = min(bound, math.sqrt(2.0) * rms)
             # at the hole itself: the samples on either side of it away from the mean of the
             # last 1 / nom samples say the missing ones were too (a sway's peak)
-            edge = 0.5 * (np.asarray(nxt) + x[-1]) - x[-min(n, int(round(1.0 / nom))):].mean(0)
-            means.append(max(bound, float(np.abs(edge).max()) * nom * m) ** 2)
+            edge = 0.5 * (nxt + x[-1]) - x[-min(n, int(round(1.0 / nom))):].mean(0)
+            var, value = max(bound, float(np.abs(edge).max()) * nom * m) ** 2, mean
+            # a change from the last sample to the next one, anywhere in the hole (a shove):
+            # the held and the mid bridge err by up to half of it over the hole
+            ramp = float(np.abs(nxt - x[-1]).max()) * nom * m / 2.0
+            if m + 1 < n:
+                # at position k the replaced samples are x[k+1..k+m], the next one x[k+m+1]
+                S = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
+                missed = S[m + 1:n] - S[1:n - m]
+                # the mid bridge: the mean of the last sample and the next one (exact for a
+                # ramp between them), used instead of the recent mean when it errs less, both
+                # on the recent motion and with the terms at the hole
+                e = nom * (0.5 * m * (x[:n - m - 1] + x[m + 1:]) - missed)
+                rms = math.sqrt(2.0) * float(np.sqrt(np.mean(e * e, axis=0)).max())
+                mid = max(rms, ramp) ** 2
+                if rms < bound and mid < var:
+                    var, value = mid, 0.5 * (nxt + x[-1])
+            means.append(var)
+            values.append(value)
             if held:
-                # at position k the held sample is x[k+m+1], the replaced ones x[k+1..k+m];
-                # a hole as long as the window: what the means bridge would err
+                # the held bridge; a hole as long as the window: what the means bridge errs
                 if m + 1 < n:
-                    S = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
-                    e = nom * (m * x[m + 1:] - (S[m + 1:n] - S[1:n - m]))
+                    e = nom * (m * x[m + 1:] - missed)
                     rms = float(np.sqrt(np.mean(e * e, axis=0)).max())
-                    ramp = float(np.abs(np.asarray(nxt) - x[-1]).max()) * nom * m / 2.0
                     holds.append(max(math.sqrt(2.0) * rms, ramp) ** 2)
                 else:
                     holds.append(means[-1])
-        return tuple(means), (tuple(holds) if held else None), (second[:3], second[3:])
+        return tuple(means), (tuple(holds) if held else None), tuple(values)
 
 
 class UnitsMonitor:
