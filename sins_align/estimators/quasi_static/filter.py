@@ -70,11 +70,11 @@ class AlignmentFilter(FastPath, Backtrack):
         self._bias_var = np.array([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
         self.Gamma = bias_input_matrix(c.model)
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
-        self._K, self._W = earth_poly(self.w_ie)
-        self._K2 = self._K @ self._K
-        # (3, 9): column 3 k + i holds column i of M_k, M = I, K, K^2 (see _advance_segments)
+        self._Ue, self._W = earth_poly(self.w_ie)    # exp(-(w_ie x) s) in sin, cos of W s
+        self._Ue2 = self._Ue @ self._Ue
+        # (3, 9): column 3 k + i holds column i of M_k, M = I, Ue, Ue^2 (see _advance_segments)
         self._g_col = self.g_n[:, None]
-        self._Gv = np.stack([np.eye(3), self._K, self._K2]).transpose(1, 0, 2).reshape(3, 9)
+        self._Gv = np.stack([np.eye(3), self._Ue, self._Ue2]).transpose(1, 0, 2).reshape(3, 9)
         self._cache: dict = {}
         self._scratch: dict = {}       # the fast path's large temporaries, reused (scratch_array)
         self.on_update = None          # fast path: called with the sample index after updates
