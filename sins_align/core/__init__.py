@@ -6,4 +6,5 @@
 - :mod:`~sins_align.core.models`: the paper's error models (F, H, noise input).
 - :mod:`~sins_align.core.kalman`: discretisation, Joseph update, batched Riccati steps.
 - :mod:`~sins_align.core.preint`: vectorised integration of gyro and accelerometer samples.
+- :mod:`~sins_align.core.strapdown`: moving-base strapdown mechanization (ENU, lat/lon/h).
 """
