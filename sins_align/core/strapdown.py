@@ -54,40 +54,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sins_align.core import earth
-from sins_align.core.earth import OMEGA_IE
+from sins_align.core.earth import (GRAVITY_EQUATOR, GRAVITY_PER_METRE, OMEGA_IE, SOMIGLIANA_K,
+                                   WGS84_A, WGS84_E2, normal_gravity, radii)
+from sins_align.core.earth import earth_rate_enu as earth_rate
 from sins_align.core.rotation import so3_exp
 
 __all__ = ["WGS84_A", "WGS84_E2", "NavState", "NavTrack", "radii", "normal_gravity",
            "earth_rate", "transport_rate", "mechanize", "mechanize_block"]
-
-#: WGS-84 semi-major axis, m.
-WGS84_A = 6378137.0
-#: WGS-84 first eccentricity squared (the value core/earth's Somigliana formula uses).
-WGS84_E2 = earth._E2
-
-
-def radii(lat):
-    """WGS-84 radii of curvature ``(R_M, R_N)``, m: meridian and prime vertical.
-
-    ``lat`` rad, a float or an array (the radii then have its shape)."""
-    s2 = np.sin(lat) ** 2
-    d = 1.0 - WGS84_E2 * s2
-    rn = WGS84_A / np.sqrt(d)
-    return rn * (1.0 - WGS84_E2) / d, rn
-
-
-def normal_gravity(lat, h):
-    """Normal gravity magnitude, m/s^2, vectorised: the same formula and constants as
-    :func:`sins_align.core.earth.gravity` (Somigliana plus a linear height term)."""
-    s2 = np.sin(lat) ** 2
-    return earth._GE * (1.0 + earth._K * s2) / np.sqrt(1.0 - earth._E2 * s2) - earth._DG_DH * h
-
-
-def earth_rate(lat) -> np.ndarray:
-    """Earth rate ``w_ie^n``, rad/s, ENU, shape ``lat.shape + (3,)``."""
-    lat = np.asarray(lat, dtype=float)
-    return np.stack([np.zeros_like(lat), OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat)], -1)
 
 
 def transport_rate(v, lat, h) -> np.ndarray:
@@ -154,7 +127,9 @@ class NavTrack:
 
 
 def _rates(v, lat, h):
-    """(w_ie, w_en, g) at one state, floats in ENU: scalar math (this runs once per sample)."""
+    """(w_ie, w_en, g, R_M, R_N) at one state, floats in ENU: core.earth's radii and
+    normal_gravity (and transport_rate) written out in scalar math, since this runs twice per
+    sample and numpy's per-call cost on floats would dominate it."""
     s, c = math.sin(lat), math.cos(lat)
     d = 1.0 - WGS84_E2 * s * s
     rn = WGS84_A / math.sqrt(d)
@@ -162,7 +137,7 @@ def _rates(v, lat, h):
     ve = v[0] / (rn + h)
     w_ie = (0.0, OMEGA_IE * c, OMEGA_IE * s)
     w_en = (-v[1] / (rm + h), ve, ve * s / c)
-    g = earth._GE * (1.0 + earth._K * s * s) / math.sqrt(d) - earth._DG_DH * h
+    g = GRAVITY_EQUATOR * (1.0 + SOMIGLIANA_K * s * s) / math.sqrt(d) - GRAVITY_PER_METRE * h
     return w_ie, w_en, g, rm, rn
 
 
