@@ -140,13 +140,12 @@ class Aligner:
             self.events: Counter = Counter()
             self._listeners: list[Callable[[AlignmentEvent], None]] = []
             self._aligned = False
-        elif self._aligned:
-            self._aligned = False
-            self._emit("aligned", self.t_last, False)
+            self.t_last: float | None = None
+        last = self.t_last                  # where a dropped flag is reported
         self.samples_used = 0
         self.last_reject: str | None = None
         self.t_first: float | None = None
-        self.t_last: float | None = None
+        self.t_last = None
         self._t_prev_raw: float | None = None
         self._jump: tuple[float, int] | None = None    # pending time jump: (stamp, samples)
         self._force_ok: float | None = None    # stamp of the last force within range
@@ -155,7 +154,7 @@ class Aligner:
         self._units = UnitsMonitor(self) if c.units_check_window > 0 else None
         self._recent = RecentMotion()
         self.units_suspect = False
-        self._restart_filter()
+        self._restart_filter(last)
         self._emit("restarted", None, reason)
 
     def _restart_filter(self, stamp: float | None = None):
@@ -479,7 +478,6 @@ class Aligner:
                 d = f - f_ref
                 force_var = float(d @ d) * dt * dt
                 why = None
-                self.events["force_out_of_range"] += 1
         elif why is None:
             self._force_ok = t
         if why is not None:
@@ -487,7 +485,7 @@ class Aligner:
         dR = None
         if self._units is not None:
             dR = self._units.add(raw_dt, w, f)
-            verdict, self._units.verdict = self._units.verdict, None
+            verdict = self._units.take_verdict()
             if verdict is not None:
                 self._units_verdict(verdict, t)
             if self.units_suspect:
@@ -526,6 +524,7 @@ class Aligner:
             self.events["missing_samples"] += max(1, int(round(missing / nom)))
         if force_var > 0.0:
             hole = (hole[0], hole[1] + force_var)
+            self.events["force_out_of_range"] += 1
         self.t_last = t
         self.samples_used += 1
         self._recent.push(dt, w_in, f_in)

@@ -214,7 +214,7 @@ class UnitsMonitor:
         self.bins = int(math.ceil(self.window)) + 1
         self.last_mismatch_deg = None       # scatter of u of the last judged window, deg
         self.last_limit_deg = None          # and the limit it was compared with, deg
-        self.verdict: bool | None = None    # of the window add() closed; the Aligner takes it
+        self._verdict_now: bool | None = None   # of the window add() closed, until taken
         self._start()
 
     def _start(self):
@@ -307,10 +307,16 @@ class UnitsMonitor:
         limit = self.RATIO * sf + self.allow * T / math.sqrt(12.0) + self.TOL
         return su > limit, su, limit
 
+    def take_verdict(self) -> bool | None:
+        """The verdict of the window the last :meth:`add` closed (True: the rates look like
+        deg/s; False: they do not), once; None when no window closed since."""
+        out, self._verdict_now = self._verdict_now, None
+        return out
+
     def add(self, dt, w, f):
         """One sample; returns exp(w dt), which the filter can reuse (None if skipped: a
         gap or a time jump, which also discards the window). A window closing here leaves
-        its verdict in :attr:`verdict` (True: the rates look like deg/s)."""
+        its verdict for :meth:`take_verdict`."""
         if not 0.0 < dt <= self._gap(None):
             self._start()
             return None
@@ -326,7 +332,7 @@ class UnitsMonitor:
             verdict = self._verdict(self.B, self.acc, self.T)
             if verdict is not None:
                 bad, su, limit = verdict
-                self.verdict = bool(bad)
+                self._verdict_now = bool(bad)
                 self.last_mismatch_deg, self.last_limit_deg = su / DEG, limit / DEG
             self._start()
         return dR
