@@ -23,9 +23,9 @@ from colcon_build import PKG, REPO_ROOT, installed_env, session_install
 
 # ROS packages whose import needs an exec_depend of the same name.
 ROS_PACKAGES = {'rclpy', 'sensor_msgs', 'geometry_msgs', 'std_msgs', 'std_srvs',
-                'diagnostic_msgs', 'builtin_interfaces', 'rcl_interfaces'}
+                'diagnostic_msgs', 'nav_msgs', 'builtin_interfaces', 'rcl_interfaces'}
 # Other imports with a rosdep key.
-ROSDEP_KEYS = {'numpy': 'python3-numpy'}
+ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy'}
 
 
 def entry_points() -> list[str]:
