@@ -375,6 +375,7 @@ class MotionAligner:
         self.ekf.w_last[:] = ws[-1]
         self.ekf.f_last[:] = fs[-1]
         self._logw = np.full(K, -math.log(K))
+        self._prior_head_std = head_std
         self._best = 0
         if c.vehicle == "ground":
             self._next_nhc = t0 + c.nhc_period
@@ -573,9 +574,10 @@ class MotionAligner:
             best = int(np.argmax(lw))
             # hypotheses that converged onto the best one merge into it: within 3 sigma of
             # its own attitude uncertainty on every axis
+            # (once the best one has learnt something: its heading std a third of the prior)
             d = attitude_error(self.ekf.C, self.ekf.C[best][None])
             sd = np.sqrt(np.diag(self.ekf.covariance_enu[best]))
-            same = np.all(np.abs(d) <= 3.0 * sd, axis=1)
+            same = np.all(np.abs(d) <= 3.0 * sd, axis=1) & (sd[2] <= self._prior_head_std / 3.0)
             same[best] = False
             if same.any():
                 lw[best] = np.logaddexp(lw[best], np.logaddexp.reduce(lw[same]))

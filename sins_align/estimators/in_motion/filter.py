@@ -207,23 +207,27 @@ class InvariantEKF:
 
     # ------------------------------------------------------------ propagation
     def propagate(self, dt, gyro, accel) -> None:
-        """Propagate over samples (dt (m,), gyro and accel (m, 3)) in runs of at most MAX_RUN s."""
+        """Propagate over samples in runs of at most MAX_RUN s: dt (m,); gyro and accel
+        (m, 3), the same samples for every filter, or (K, m, 3), each filter its own (a
+        Monte Carlo of K runs)."""
         dt = np.asarray(dt, dtype=float).reshape(-1)
-        gyro = np.asarray(gyro, dtype=float).reshape(-1, 3)
-        accel = np.asarray(accel, dtype=float).reshape(-1, 3)
+        gyro = np.asarray(gyro, dtype=float)
+        accel = np.asarray(accel, dtype=float)
         m = len(dt)
         if m == 0:
             return
+        if gyro.shape[-2:] != (m, 3) or accel.shape != gyro.shape or gyro.ndim > 3:
+            raise ValueError(f"gyro and accel must be ({m}, 3) or (K, {m}, 3)")
         tt = np.cumsum(dt)
         k = 0
         while k < m:
             e = k + max(1, int(np.searchsorted(tt[k:], tt[k] - dt[k] + MAX_RUN, "right")))
-            self._run(dt[k:e], gyro[k:e], accel[k:e])
+            self._run(dt[k:e], gyro[..., k:e, :], accel[..., k:e, :])
             k = e
 
     def _run(self, dt, gyro, accel):
-        w = gyro[None] - self.bg[:, None]            # (K, m, 3)
-        f = accel[None] - self.ba[:, None]
+        w = gyro - self.bg[:, None]                  # (K, m, 3)
+        f = accel - self.ba[:, None]
         rv = w * dt[None, :, None]
         q = quat_from_rotvec(np.concatenate([rv, 0.5 * rv], 0))
         K = len(w)
@@ -354,13 +358,16 @@ class InvariantEKF:
         return z_hat, C @ Hb
 
     def update_velocity(self, z, R, nis_limit=None):
-        """Velocity of the antenna, ENU (3,); NaN components are not measured; R (3, 3).
+        """Velocity of the antenna, ENU: (3,) for every filter, NaN components not measured,
+        R (3, 3); or (K, 3) and R (K, 3, 3), each filter its own (all finite).
         Returns (NIS per dof, log-likelihood), each (K,)."""
         z = np.asarray(z, dtype=float)
         z_hat, H = self.velocity_model()
+        R = np.asarray(R, dtype=float)
+        if z.ndim == 2:
+            return self._apply(z - z_hat, H, R, nis_limit)
         ok = np.isfinite(z)
-        R = np.asarray(R, dtype=float)[np.ix_(ok, ok)]
-        return self._apply((z - z_hat)[:, ok], H[:, ok], R, nis_limit)
+        return self._apply((z - z_hat)[:, ok], H[:, ok], R[np.ix_(ok, ok)], nis_limit)
 
     def update_lateral(self, axis: int, sigma: float, nis_limit=None):
         """Non-holonomic constraint: the body velocity along ``axis`` is zero (+- sigma)."""
