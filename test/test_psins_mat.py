@@ -1,5 +1,5 @@
 """The PSINS transfer-alignment data (``sins_align.data.TRANSFER_FOG_MEMS``): reader,
-and the conventions checked against the data itself.
+conventions checked against the data itself, and ``import_imu --format psins-mat``.
 
 What the tests prove:
 
@@ -13,20 +13,28 @@ What the tests prove:
 - the sign of the mounting ``mu0`` in the slave's true attitude: the MEMS fits the reader's
   slave attitude better than the master's, and the master's better than the opposite sign;
   a least-squares fit of the yaw mounting to the gyro alone (no lever arm there) lands on
-  the reader's side.
+  the reader's side;
+- the bag written by ``import_imu`` holds exactly the reader's arrays on every topic, with the
+  REP-105 twist (body axes) and the positions consistent with the velocities;
+- corrupt input (truncated, a variable missing, not a .mat) is one line, non-zero exit, and
+  leaves nothing behind.
 """
 from __future__ import annotations
 
 import hashlib
+import json
+import shutil
 
 import numpy as np
 import pytest
 import scipy.io
 
+from cli_helpers import cli, listing
 from sins_align.core.earth import earth_rate_enu, normal_gravity, radii
 from sins_align.core.rotation import dcm_from_quat, skew, so3_exp, so3_log
 from sins_align.data import TRANSFER_FOG_MEMS
 from sins_align.io.psins import read_psins_mat
+from sins_align.tools import import_imu
 
 DEG = np.pi / 180.0
 MD5 = "d457e668e81b3ffc0087ba5fe273dfd5"
@@ -203,3 +211,196 @@ def test_slave_truth_uses_the_mounting_with_the_sign_the_data_shows(mat, interva
     sol, res, *_ = np.linalg.lstsq(a, b, rcond=None)
     sd = np.sqrt(res[0] / (b.size - 6) * np.diag(np.linalg.inv(a.T @ a)))
     assert abs(sol[2] - x[2]) < 3 * sd[2] < abs(sol[2] + x[2]), (sol[2], x[2], sd[2])
+
+
+# ------------------------------------------------------------------------------ import
+def read_bag(bag):
+    """topic -> [(log ns, message)], and the metadata's custom data."""
+    from rosbags.highlevel import AnyReader
+
+    out: dict[str, list] = {}
+    with AnyReader([bag]) as r:
+        types = {c.topic: c.msgtype for c in r.connections}
+        for c, ns, data in r.messages():
+            out.setdefault(c.topic, []).append((ns, r.deserialize(data, c.msgtype)))
+    import yaml
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    return out, types, meta["rosbag2_bagfile_information"]["custom_data"]
+
+
+def _stamp(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def _xyz(v):
+    return [v.x, v.y, v.z]
+
+
+def _xyzw(q):
+    return [q.x, q.y, q.z, q.w]
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory):
+    d = tmp_path_factory.mktemp("mat")
+    rc = import_imu.main([str(TRANSFER_FOG_MEMS), str(d / "full")])
+    assert rc == 0
+    return d / "full"
+
+
+def test_import_writes_every_topic_with_the_reader_values(mat, imported):
+    topics, types, custom = read_bag(imported)
+    assert types == {"/imu/data_raw": "sensor_msgs/msg/Imu",
+                     "/master/odom": "nav_msgs/msg/Odometry",
+                     "/master/velocity": "geometry_msgs/msg/TwistWithCovarianceStamped",
+                     "/master/fix": "sensor_msgs/msg/NavSatFix",
+                     "/imu_sim/truth": "geometry_msgs/msg/QuaternionStamped"}
+    imu = [m for _, m in topics["/imu/data_raw"]]
+    assert len(imu) == 10001
+    assert [_stamp(m) for m in imu] == np.rint(mat.t * 1e9).astype(np.int64).tolist()
+    assert [ns for ns, _ in topics["/imu/data_raw"]] == [_stamp(m) for m in imu]
+    np.testing.assert_array_equal([_xyz(m.angular_velocity) for m in imu], mat.gyro)
+    np.testing.assert_array_equal([_xyz(m.linear_acceleration) for m in imu], mat.accel)
+    assert {m.header.frame_id for m in imu} == {"imu_link"}
+    assert imu[0].orientation_covariance[0] == -1.0
+
+    master_ns = np.rint(mat.master_t * 1e9).astype(np.int64).tolist()
+    odom = [m for _, m in topics["/master/odom"]]
+    vel = [m for _, m in topics["/master/velocity"]]
+    fix = [m for _, m in topics["/master/fix"]]
+    truth = [m for _, m in topics["/imu_sim/truth"]]
+    for msgs in (odom, vel, fix, truth):
+        assert [_stamp(m) for m in msgs] == master_ns
+    # odometry: ENU world frame -> the master's body; orientation = C_b^n
+    assert {(m.header.frame_id, m.child_frame_id) for m in odom} == {("enu", "master_link")}
+    np.testing.assert_array_equal([_xyzw(m.pose.pose.orientation) for m in odom],
+                                  mat.master_quat)
+    # twist in the child frame (REP-105): rotated back to ENU it is the master velocity
+    v_b = np.array([_xyz(m.twist.twist.linear) for m in odom])
+    np.testing.assert_allclose(np.einsum("kij,kj->ki", mat.master_dcm, v_b), mat.master_vel,
+                               atol=1e-12)
+    # velocity topic: ENU as in the file; its angular rate is the odometry's, in ENU
+    assert {m.header.frame_id for m in vel} == {"enu"}
+    np.testing.assert_array_equal([_xyz(m.twist.twist.linear) for m in vel], mat.master_vel)
+    w_b = np.array([_xyz(m.twist.twist.angular) for m in odom])
+    w_n = np.array([_xyz(m.twist.twist.angular) for m in vel])
+    np.testing.assert_allclose(np.einsum("kij,kj->ki", mat.master_dcm, w_b), w_n, atol=1e-15)
+    # ... and the body rate agrees with the MEMS gyro (1 s means; MEMS bias ~ 1e-3 rad/s)
+    gyro_at = np.array([mat.gyro[max(0, k - 5):k + 5].mean(0)
+                        for k in np.rint(mat.master_t / mat.ts).astype(int)])
+    assert np.sqrt(((_windows(w_b) - _windows(gyro_at)) ** 2).sum(1).mean()) < 3e-3
+    cov = np.array(vel[0].twist.covariance).reshape(6, 6)
+    np.testing.assert_allclose(np.diag(cov)[:3], 0.01 ** 2)
+    cov = np.array(odom[0].pose.covariance).reshape(6, 6)
+    np.testing.assert_allclose(np.diag(cov), [1.0] * 3 + [(0.01 * DEG) ** 2] * 3)
+    # positions: ENU offsets from the first record, consistent with the velocities
+    pos = np.array([_xyz(m.pose.pose.position) for m in odom])
+    assert np.all(pos[0] == 0.0)
+    steps = np.diff(pos, axis=0)
+    from_vel = 0.5 * (mat.master_vel[1:] + mat.master_vel[:-1]) * np.diff(mat.master_t)[:, None]
+    assert np.linalg.norm(pos[-1]) > 1000                              # 1.3 km driven
+    np.testing.assert_allclose(steps.sum(0), from_vel.sum(0), atol=0.01 * np.linalg.norm(pos[-1]))
+    # fix: degrees and the file's height
+    np.testing.assert_array_equal([m.latitude for m in fix], np.rad2deg(mat.master_lat))
+    np.testing.assert_array_equal([m.longitude for m in fix], np.rad2deg(mat.master_lon))
+    np.testing.assert_array_equal([m.altitude for m in fix], mat.master_height)
+    assert {m.header.frame_id for m in fix} == {"master_link"}
+    # truth: the slave's attitude, in the Imu's frame, as replay's --truth-topic reads it
+    assert {m.header.frame_id for m in truth} == {"imu_link"}
+    np.testing.assert_array_equal([_xyzw(m.quaternion) for m in truth], mat.slave_quat)
+    # the reference values travel in the metadata
+    np.testing.assert_array_equal(json.loads(custom["sins_align.psins_mat.mu0_rad"]), mat.mu0)
+    np.testing.assert_array_equal(json.loads(custom["sins_align.psins_mat.db0_m_s2"]), mat.db0)
+    np.testing.assert_array_equal(json.loads(custom["sins_align.psins_mat.eb0_rad_s"]), mat.eb0)
+    assert custom["sins_align.format"] == "psins-mat"
+
+
+def test_import_t0_limits_topic_names_and_detection_by_header(mat, tmp_path, capsys):
+    """--t0 shifts every stamp; --max-duration keeps the IMU samples of the first S seconds
+    and the master records up to the last of them; topic and frame flags rename; a .mat under
+    another name is told by its MATLAB header."""
+    src = tmp_path / "data.bin"
+    shutil.copyfile(TRANSFER_FOG_MEMS, src)
+    out = tmp_path / "cut"
+    rc, o, err = cli(import_imu, [src, out, "--max-duration", 10, "--t0", 1000,
+                                  "--master-odom-topic", "/ins/odom", "--truth-topic", "/gt",
+                                  "--world-frame", "local_enu", "--grade", "consumer"], capsys)
+    assert rc == 0, err
+    assert "from psins-mat data.bin" in o and "1000 samples" in o
+    topics, _, _ = read_bag(out)
+    assert set(topics) == {"/imu/data_raw", "/ins/odom", "/master/velocity", "/master/fix",
+                           "/gt"}
+    imu = [m for _, m in topics["/imu/data_raw"]]
+    keep = mat.t < mat.t[0] + 10
+    assert len(imu) == int(keep.sum())
+    t0 = 1000 * 1_000_000_000
+    assert [_stamp(m) for m in imu] == (t0 + np.rint(mat.t[keep] * 1e9)).astype(int).tolist()
+    last = mat.t[keep][-1]
+    n_master = int((mat.master_t <= last + 1e-9).sum())
+    assert 0 < n_master < mat.n_master
+    for topic in ("/ins/odom", "/master/velocity", "/master/fix", "/gt"):
+        assert [_stamp(m) for _, m in topics[topic]] == \
+            (t0 + np.rint(mat.master_t[:n_master] * 1e9)).astype(int).tolist()
+    assert topics["/ins/odom"][0][1].header.frame_id == "local_enu"
+    assert imu[0].angular_velocity_covariance[0] > 0                 # --grade applies
+
+
+# ------------------------------------------------------------------------------ errors
+@pytest.fixture(scope="module")
+def bad_mats(tmp_path_factory):
+    d = tmp_path_factory.mktemp("badmat")
+    data = TRANSFER_FOG_MEMS.read_bytes()
+    (d / "truncated.mat").write_bytes(data[: len(data) // 2])
+    (d / "last_byte_cut.mat").write_bytes(data[:-1])
+    (d / "header_only.mat").write_bytes(data[:128])
+    (d / "text.mat").write_text("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,9.8\n")
+    m = scipy.io.loadmat(TRANSFER_FOG_MEMS)
+    keep = {k: v for k, v in m.items() if not k.startswith("__")}
+    scipy.io.savemat(d / "no_mu0.mat", {k: v for k, v in keep.items() if k != "mu0"})
+    scipy.io.savemat(d / "narrow.mat", {**keep, "fogavp": keep["fogavp"][:, :9]})
+    back = keep["mimu"].copy()
+    back[50, 6] = back[49, 6]
+    scipy.io.savemat(d / "time_stalls.mat", {**keep, "mimu": back})
+    nan = keep["fogavp"].copy()
+    nan[3, 4] = np.nan
+    scipy.io.savemat(d / "nan.mat", {**keep, "fogavp": nan})
+    return d
+
+
+BAD = {"truncated.mat": "not a readable MATLAB .mat file",
+       "last_byte_cut.mat": "not a readable MATLAB .mat file",
+       "header_only.mat": "variable 'mimu' missing",
+       "text.mat": "not a readable MATLAB .mat file",
+       "no_mu0.mat": "variable 'mu0' missing",
+       "narrow.mat": "'fogavp' must be an (n, 10) array",
+       "time_stalls.mat": "mimu time does not increase at row 51",
+       "nan.mat": "'fogavp' has a non-finite value (row 4)"}
+
+
+@pytest.mark.parametrize("name", sorted(BAD))
+def test_bad_mat_is_one_line_and_leaves_nothing(bad_mats, name, capsys):
+    before = listing(bad_mats)
+    with pytest.raises(ValueError, match=str(bad_mats / name)):
+        read_psins_mat(bad_mats / name)
+    rc, out, err = cli(import_imu, [bad_mats / name, bad_mats / "out"], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1, err
+    assert lines[0].startswith("import_imu: error:") and str(bad_mats / name) in lines[0]
+    assert BAD[name] in lines[0], lines[0]
+    assert listing(bad_mats) == before and out == ""
+
+
+def test_mat_options_are_refused_with_other_formats(tmp_path, capsys):
+    csv = tmp_path / "a.csv"
+    csv.write_text("t,gx,gy,gz,ax,ay,az\n0.01,0,0,0,0,0,9.8\n0.02,0,0,0,0,0,9.8\n")
+    rc, _, err = cli(import_imu, [csv, tmp_path / "o", "--truth-topic", "/x"], capsys)
+    assert rc == 2 and "--truth-topic: only for --format psins-mat" in err
+    rc, _, err = cli(import_imu, [TRANSFER_FOG_MEMS, tmp_path / "o", "--truth-topic",
+                                  "/imu/data_raw"], capsys)
+    assert rc == 2 and "topics must differ" in err
+    rc, _, err = cli(import_imu, [TRANSFER_FOG_MEMS, tmp_path / "o", "--gyro-units", "deg"],
+                     capsys)
+    assert rc == 2 and "PSINS .mat states its own units" in err
+    rc, _, err = cli(import_imu, [TRANSFER_FOG_MEMS, tmp_path / "o", "--t0", "-5"], capsys)
+    assert rc == 2 and "outside a ROS stamp's range" in err
+    assert listing(tmp_path) == {"a.csv"}
