@@ -735,9 +735,11 @@ PRESETS = {"car_with_turn": car_with_turn, "uav_seed003": uav_seed003, "car_city
            "car_straight": car_straight, "ship_under_way": ship_under_way}
 
 
-def trajectory_preset(name: str) -> Trajectory:
-    """A preset trajectory by name (see :data:`PRESETS`)."""
+def trajectory_preset(name: str, **kwargs) -> Trajectory:
+    """A preset trajectory by name (see :data:`PRESETS`); ``kwargs`` (``lat_deg``,
+    ``lon_deg``, ``height_m``, ``yaw_deg``) go to the preset's function."""
     try:
-        return PRESETS[name]()
+        make = PRESETS[name]
     except KeyError:
         raise ValueError(f"unknown trajectory {name!r}; choose one of {sorted(PRESETS)}") from None
+    return make(**kwargs)
