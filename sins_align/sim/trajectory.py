@@ -35,9 +35,10 @@ On that half-sample grid the exact rates and specific force are::
     f^b    = C^T (dv/dt + (2 w_ie^n + w_en^n) x v - g^n)
 
 with ``w_nb^b`` from the Euler-angle rates. IMU sample k is their mean over
-``(t[k-1], t[k]]`` by Simpson's rule (exact for a cubic in time; for the slow waves its error
-is ~(w dt)^4 / 180 of the amplitude, below 1e-9 of it), i.e. the increment divided by dt, the
-convention of :mod:`sins_align.sim.simulator` and :mod:`sins_align.core.strapdown`.
+``(t[k-1], t[k]]`` by Simpson's rule (exact for a cubic in time; for a wave of angular
+frequency w its error is (w dt)^4 / 2880 of the wave's rate amplitude, 1e-12 for an 8 s period
+at 100 Hz), i.e. the increment divided by dt, the convention of
+:mod:`sins_align.sim.simulator` and :mod:`sins_align.core.strapdown`.
 
 Sensor errors (each sample, per axis ``i``)::
 
