@@ -13,4 +13,9 @@ nothing else.
 
 - :mod:`~sins_align.estimators.quasi_static`: self-alignment on a still or swaying base
   (gyrocompassing, the paper's damped mechanization and constant-matrix Kalman filter).
+- :mod:`~sins_align.estimators.in_motion`: alignment on a moving base from a velocity
+  reference (GNSS velocity or a master INS; left-invariant error-state filter, a bank of
+  heading hypotheses while the heading is unknown). Besides the common interface it takes
+  ``add_velocity``, ``add_position`` and ``add_attitude`` and reports
+  ``heading_observable`` and the bias estimates.
 """

@@ -10,10 +10,15 @@ interface every estimator has (:mod:`sins_align.estimators`):
   to a stored state before the stamp and run the stored samples again, up to
   ``max_measurement_lag`` s back; older ones are refused;
 - a ground vehicle gets the non-holonomic constraint every ``nhc_period`` s;
-- the start: roll and pitch from the mean specific force over ``init_time`` s, the heading
-  from the guess (``initial_rpy_deg``) or unknown, the velocity from the first measurement;
-  their covariance covers the worst case the data allow (tilt from the acceleration the
-  velocity reference shows during the averaging, the measurement's age);
+- the start: roll and pitch from the mean specific force over ``init_time`` s, the velocity
+  from the first measurement; their covariance covers the worst case the data allow (tilt
+  from the acceleration the velocity reference shows during the averaging, the
+  measurement's age). The heading from a guess (``initial_rpy_deg`` with a std up to 30
+  deg): one filter; else a bank of ``heading_hypotheses`` filters whose yaws are spread
+  around the circle, weighed by the likelihood of every measurement; a hypothesis that
+  converges onto the best merges into it, one under 1e-6 is dropped, and the bank collapses
+  to the best once it holds 99.9 %. Until then the published attitude is the best one's and
+  the covariance the mixture's about it;
 - the heading counts as observable once its std is below ``observable_heading_std_deg``
   (seed 001: velocity matching sees heading only through horizontal specific force, so this
   happens at the first acceleration or turn, or never while the vehicle stands or cruises);
