@@ -1,0 +1,684 @@
+"""Streaming in-motion alignment with a velocity reference (:class:`MotionAligner`).
+
+The stream around :class:`~sins_align.estimators.in_motion.filter.InvariantEKF`, behind the
+interface every estimator has (:mod:`sins_align.estimators`):
+
+- IMU samples (:meth:`MotionAligner.update`, one or a block) are checked and propagated;
+- measurements (:meth:`~MotionAligner.add_velocity`, :meth:`~MotionAligner.add_attitude`) are
+  applied at their own stamps: one stamped ahead of the IMU waits until the IMU reaches it;
+  one stamped behind (GNSS velocity arrives ~0.1 s after its stamp) makes the filter go back
+  to a stored state before the stamp and run the stored samples again, up to
+  ``max_measurement_lag`` s back; older ones are refused;
+- a ground vehicle gets the non-holonomic constraint every ``nhc_period`` s;
+- the start: roll and pitch from the mean specific force over ``init_time`` s, the heading
+  from the guess (``initial_rpy_deg``) or unknown, the velocity from the first measurement;
+  their covariance covers the worst case the data allow (tilt from the acceleration the
+  velocity reference shows during the averaging, the measurement's age);
+- the heading counts as observable once its std is below ``observable_heading_std_deg``
+  (seed 001: velocity matching sees heading only through horizontal specific force, so this
+  happens at the first acceleration or turn, or never while the vehicle stands or cruises);
+  ``aligned`` needs it, the std criteria and consistent recent innovations.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+from collections import Counter, deque
+from collections.abc import Callable
+
+import numpy as np
+
+from sins_align.core.earth import normal_gravity
+from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rpy,
+                                      heading_from_dcm, quat_from_dcm, rpy_from_dcm)
+from sins_align.core.specs import DEG, DPH
+from sins_align.core.strapdown import NavState
+from sins_align.estimators.in_motion.config import MotionConfig
+from sins_align.estimators.in_motion.filter import (IBA, IBG, ILEV, INU, IPHI, InvariantEKF,
+                                                    NoiseModel)
+from sins_align.estimators.quasi_static.aligner import AlignmentEvent
+
+__all__ = ["MotionAligner", "MOTION_REJECT_REASONS", "MOTION_STATES"]
+
+#: Reasons an IMU sample or a measurement can be refused.
+MOTION_REJECT_REASONS = (
+    "nonfinite",                  # NaN or Inf in a stamp or a value
+    "duplicate_stamp",            # IMU: same stamp as the previous accepted sample
+    "stamp_backwards",            # IMU: stamp earlier than the previous accepted sample
+    "time_jump",                  # IMU: gap above max_gap: the alignment starts over
+    "gravity_removed",            # IMU: |f| < 0.25 g
+    "specific_force_out_of_range",  # IMU: |f| > specific_force_max
+    "rate_too_high",              # IMU: |w| > max_angular_rate
+    "measurement_too_late",       # a measurement stamped more than max_measurement_lag back
+    "measurement_invalid",        # a measurement with a bad covariance or shape
+)
+
+MOTION_STATES = ("waiting", "aligning", "aligned")
+
+#: heading std of each hypothesis, as a fraction of their spacing
+HYPOTHESIS_SPREAD = 0.6
+#: s of history kept beyond max_measurement_lag (for the rewinds)
+_HISTORY_MARGIN = 0.2
+#: a heading guess with a std above this (deg) is no guess: the bank of hypotheses starts
+HYPOTHESIS_MAX_STD_DEG = 30.0
+#: hypotheses whose weight falls below this are dropped
+HYPOTHESIS_MIN_WEIGHT = 1e-6
+#: the bank collapses to its best hypothesis once that one holds this weight
+HYPOTHESIS_COLLAPSE = 0.999
+
+
+class MotionAligner:
+    """Streaming in-motion alignment of one IMU with a velocity reference.
+
+    Examples
+    --------
+    >>> al = MotionAligner(MotionConfig(latitude_deg=34.0, specs="consumer"))
+    >>> al.add_velocity(t_gnss, v_enu)              # any order, up to max_measurement_lag late
+    >>> al.update(t, gyro, accel)                   # t (N,) s, gyro (N, 3), accel (N, 3)
+    >>> al.quaternion, al.std_enu_deg, al.heading_observable, al.aligned
+    """
+
+    def __init__(self, config: MotionConfig):
+        self.config = config
+        s = config.specs
+        tau = s.bias_correlation_time
+        walk_g = s.gyro_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.gyro_bias
+        walk_a = s.accel_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.accel_bias
+        self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a)
+        self.rejected: Counter = Counter()
+        self.events: Counter = Counter()
+        self._listeners: list[Callable[[AlignmentEvent], None]] = []
+        self._aligned = False
+        self.t_last: float | None = None
+        self.reset("start")
+
+    # ------------------------------------------------------------------ lifecycle
+    def subscribe(self, callback: Callable[[AlignmentEvent], None]) -> None:
+        """Call ``callback(event)`` for every event (aligned flag, restart, rejection)."""
+        self._listeners.append(callback)
+
+    def _emit(self, kind: str, stamp, value) -> None:
+        if self._listeners:
+            ev = AlignmentEvent(kind, stamp, value)
+            for cb in self._listeners:
+                cb(ev)
+
+    def _reject(self, reason: str, stamp) -> None:
+        self.rejected[reason] += 1
+        self.last_reject = reason
+        self._emit("rejected", stamp, reason)
+
+    def reset(self, reason: str = "reset") -> None:
+        """Forget the alignment and the time line; keep the configuration, subscriptions and
+        the life counters ``rejected`` and ``events``."""
+        c = self.config
+        last = self.t_last
+        self.ekf: InvariantEKF | None = None
+        self._logw = np.zeros(1)
+        self._best = 0
+        self.t_last = None
+        self.t_first: float | None = None
+        self.last_reject: str | None = None
+        self.samples_used = 0
+        self.position = (c.latitude_deg * DEG, c.longitude_deg * DEG, c.height_m)
+        self._init_buf: deque = deque()          # (t, gyro, accel) before the start
+        self._pending: list = []                 # sorted (stamp, seq, kind, payload)
+        self._seq = 0
+        self._applied: deque = deque()           # measurements applied, within the lag
+        self._history: deque = deque()           # accepted samples (t, gyro, accel) arrays
+        self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
+        self._next_nhc: float | None = None
+        self._nis: deque = deque()               # (t, nis per dof, dof)
+        self._replaying = False
+        self.time_to_aligned: float | None = None
+        self.heading_observable = False
+        if self._aligned:
+            self._aligned = False
+            self._emit("aligned", last, False)
+        self._emit("restarted", None, reason)
+
+    # ------------------------------------------------------------------ results
+    @property
+    def initialized(self) -> bool:
+        return self.ekf is not None
+
+    @property
+    def dcm(self) -> np.ndarray:
+        return np.eye(3) if self.ekf is None else self.ekf.C[self._best].copy()
+
+    @property
+    def quaternion(self) -> np.ndarray:
+        return quat_from_dcm(self.dcm)
+
+    @property
+    def rpy_deg(self) -> np.ndarray:
+        return rpy_from_dcm(self.dcm) / DEG
+
+    @property
+    def heading_deg(self) -> float:
+        return float(heading_from_dcm(self.dcm)) / DEG
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Attitude error covariance, ENU (C_true = exp(e x) C_est), rad^2. Before the start:
+        pi^2 on each axis (nothing known)."""
+        if self.ekf is None:
+            return np.eye(3) * math.pi ** 2
+        covs = self.ekf.covariance_enu
+        if self.ekf.K == 1:
+            return covs[0]
+        # the Gaussian sum's covariance about the published (best) hypothesis
+        w = np.exp(self._logw)
+        d = attitude_error(self.ekf.C, self.ekf.C[self._best][None])     # (K, 3), ENU
+        return np.einsum("k,kij->ij", w, covs + d[:, :, None] * d[:, None, :])
+
+    @property
+    def hypotheses(self) -> int:
+        """Heading hypotheses still alive (1 once the heading is acquired; 0 before the
+        start)."""
+        return 0 if self.ekf is None else self.ekf.K
+
+    @property
+    def std_enu_deg(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance)) / DEG
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return np.full(3, np.nan) if self.ekf is None else self.ekf.v[self._best].copy()
+
+    @property
+    def bias_gyro(self) -> np.ndarray:
+        return np.full(3, np.nan) if self.ekf is None else self.ekf.bg[self._best].copy()
+
+    @property
+    def bias_accel(self) -> np.ndarray:
+        return np.full(3, np.nan) if self.ekf is None else self.ekf.ba[self._best].copy()
+
+    @property
+    def lever_arm(self) -> np.ndarray:
+        return (np.array(self.config.lever_arm) if self.ekf is None
+                else self.ekf.lever[self._best].copy())
+
+    @property
+    def nis(self) -> float:
+        """Mean NIS per degree of freedom over the last ``aligned_nis_window`` s (nan: none)."""
+        if not self._nis:
+            return math.nan
+        num = sum(n * d for _, n, d in self._nis)
+        den = sum(d for _, _, d in self._nis)
+        return num / den
+
+    @property
+    def aligned(self) -> bool:
+        return self._aligned
+
+    @property
+    def status(self) -> str:
+        if self.ekf is None:
+            return "waiting"
+        return "aligned" if self._aligned else "aligning"
+
+    @property
+    def elapsed(self) -> float:
+        if self.t_first is None or self.t_last is None:
+            return 0.0
+        return self.t_last - self.t_first
+
+    # ------------------------------------------------------------------ IMU
+    def update(self, stamp, gyro, accel) -> int:
+        """IMU samples: one (float stamp, (3,) rad/s, (3,) m/s^2) or a block ((N,), (N, 3),
+        (N, 3)). Returns how many were accepted. A gap above ``max_gap`` rejects the sample
+        after it ('time_jump') and starts the alignment over."""
+        t = np.atleast_1d(np.asarray(stamp, dtype=float))
+        w = np.asarray(gyro, dtype=float).reshape(-1, 3)
+        f = np.asarray(accel, dtype=float).reshape(-1, 3)
+        if not (len(t) == len(w) == len(f)):
+            raise ValueError("stamp, gyro and accel must have the same number of samples")
+        good, jump = self._check(t, w, f)
+        end = len(t) if jump is None else jump
+        idx = np.flatnonzero(good[:end])
+        if len(idx):
+            self._feed(t[idx], w[idx], f[idx])
+        if jump is None:
+            return len(idx)
+        gap = float(t[jump]) - self.t_last
+        self._reject("time_jump", float(t[jump]))
+        self.reset(f"IMU gap of {gap:.3f} s")
+        return len(idx) + self.update(t[jump + 1:], w[jump + 1:], f[jump + 1:])
+
+    def _check(self, t, w, f):
+        """Each sample accepted or rejected (events emitted), in order against the last
+        accepted stamp, up to the first time jump; returns (mask, index of the jump or None).
+        """
+        c = self.config
+        n = len(t)
+        finite = np.isfinite(t) & np.all(np.isfinite(w), 1) & np.all(np.isfinite(f), 1)
+        fn = np.linalg.norm(np.where(finite[:, None], f, 0.0), axis=1)
+        wn = np.linalg.norm(np.where(finite[:, None], w, 0.0), axis=1)
+        reason = np.full(n, "", dtype=object)
+        reason[~finite] = "nonfinite"
+        reason[finite & (fn < 0.25 * 9.8)] = "gravity_removed"
+        reason[finite & (fn > c.specific_force_max)] = "specific_force_out_of_range"
+        reason[(reason == "") & (wn > c.max_angular_rate)] = "rate_too_high"
+        good = reason == ""
+        last = -math.inf if self.t_last is None else self.t_last
+        prior = np.maximum.accumulate(np.concatenate(([last], np.where(good, t, -np.inf)[:-1])))
+        dup = good & (t == prior)
+        back = good & (t < prior)
+        reason[dup] = "duplicate_stamp"
+        reason[back] = "stamp_backwards"
+        good &= ~(dup | back)
+        jump = None
+        gj = np.flatnonzero(good & np.isfinite(prior) & (t - prior > c.max_gap))
+        if len(gj):
+            jump = int(gj[0])
+        end = n if jump is None else jump
+        for i in np.flatnonzero(~good[:end]):
+            self._reject(reason[i], float(t[i]) if np.isfinite(t[i]) else None)
+        return good, jump
+
+    def _feed(self, t, w, f):
+        """Accepted samples, in order."""
+        if self.t_first is None:
+            self.t_first = float(t[0])
+        k = 0
+        if self.ekf is None:
+            k = self._initialize(t, w, f)
+        prev = float(t[k - 1]) if k > 0 else self.t_last
+        self.t_last = float(t[-1])
+        self.samples_used += len(t)
+        if self.ekf is not None and k < len(t):
+            tt, ww, ff = t[k:], w[k:], f[k:]
+            self._history.append((tt, ww, ff))
+            self._process(prev, tt, ww, ff)
+            self._snapshot()
+            self._prune()
+        self._evaluate(self.t_last)
+
+    # ------------------------------------------------------------------ start
+    def _initialize(self, t, w, f) -> int:
+        """Collect samples until ``init_time`` s of them and a velocity measurement within
+        them; then start the filter at the last collected sample. Returns how many of the
+        given samples were used for the start (the rest are to be propagated)."""
+        c = self.config
+        for i in range(len(t)):
+            self._init_buf.append((float(t[i]), w[i], f[i]))
+            while self._init_buf and self._init_buf[0][0] < t[i] - c.init_time:
+                self._init_buf.popleft()
+            if self._init_buf[-1][0] - self._init_buf[0][0] < 0.999 * c.init_time:
+                continue
+            meas = [p for p in self._pending if p[2] == "velocity" and p[0] <= t[i]]
+            if not meas:
+                # keep only measurements that can still be used
+                continue
+            self._start(float(t[i]), meas)
+            return i + 1
+        return len(t)
+
+    def _start(self, t0, meas):
+        c = self.config
+        buf = list(self._init_buf)
+        self._init_buf.clear()
+        fs = np.array([b[2] for b in buf])
+        ws = np.array([b[1] for b in buf])
+        fm = fs.mean(axis=0)
+        # level: the body z of ENU ("up") is along the mean specific force
+        up = fm / np.linalg.norm(fm)
+        yaw = 0.0 if c.initial_rpy_deg is None else c.initial_rpy_deg[2] * DEG
+        guess = (c.initial_rpy_deg is not None
+                 and c.initial_heading_std_deg <= HYPOTHESIS_MAX_STD_DEG)
+        K = 1 if guess else c.heading_hypotheses
+        yaws = yaw + np.arange(K) * (2.0 * math.pi / K)
+        Cs = np.array([_level_dcm(up, y) for y in yaws])
+        C = Cs[0]
+        # velocity: the newest measurement up to t0; the older ones go
+        stamp, _, _, (z, R) = meas[-1]
+        self._pending = [p for p in self._pending if not (p[2] == "velocity" and p[0] <= t0)]
+        self._pending = [p for p in self._pending if p[0] > t0]
+        # horizontal acceleration seen by the reference during the averaging: tilt bound
+        vs = [p[3][0] for p in meas if p[0] >= buf[0][0] - 0.5]
+        ts = [p[0] for p in meas if p[0] >= buf[0][0] - 0.5]
+        a_h = 0.0
+        if len(vs) >= 2 and ts[-1] > ts[0]:
+            dv = np.nan_to_num(np.asarray(vs[-1]) - np.asarray(vs[0]))
+            a_h = float(np.hypot(dv[0], dv[1])) / (ts[-1] - ts[0])
+        else:
+            a_h = 1.0                       # unknown: assume a moderate acceleration
+        g = float(normal_gravity(self.position[0], self.position[2]))
+        level_std = max(2.0 * DEG, 2.0 * math.atan2(a_h + 0.3, g))
+        # vibration / rotation during averaging widens it too
+        level_std = max(level_std, float(np.std(fs, axis=0).max()) / g)
+        head_std = (c.initial_heading_std_deg if guess
+                    else HYPOTHESIS_SPREAD * 360.0 / K) * DEG
+        z = np.where(np.isfinite(z), z, 0.0)
+        age = t0 - stamp
+        lev = np.linalg.norm(c.lever_arm)
+        wmax = float(np.linalg.norm(ws, axis=1).max())
+        v_var = np.diag(R).copy()
+        v_var[~np.isfinite(v_var)] = 4.0
+        v_var = v_var + (age * (a_h + 0.5)) ** 2 + (wmax * lev) ** 2 + 0.05 ** 2
+        n = 15 if c.lever_arm_std > 0 else 12
+        P = np.zeros((n, n))
+        # attitude: ENU covariance diag(level, level, heading) to body axes
+        Pn = np.diag([level_std ** 2, level_std ** 2, head_std ** 2])
+        P = np.tile(P, (K, 1, 1))
+        Pv = np.diag(v_var)
+        for i in range(K):
+            P[i][IPHI, IPHI] = Cs[i].T @ Pn @ Cs[i]
+            P[i][INU, INU] = Cs[i].T @ Pv @ Cs[i]
+        P[:, IBG, IBG] = np.eye(3) * c.specs.gyro_bias ** 2
+        P[:, IBA, IBA] = np.eye(3) * c.specs.accel_bias ** 2
+        if n == 15:
+            P[:, ILEV, ILEV] = np.eye(3) * c.lever_arm_std ** 2
+        lat, lon, h = self.position
+        self.ekf = InvariantEKF(NavState(C, z, lat, lon, h), P, self.noise, c.lever_arm, C=Cs)
+        self.ekf.w_last[:] = ws[-1]
+        self.ekf.f_last[:] = fs[-1]
+        self._logw = np.full(K, -math.log(K))
+        self._best = 0
+        if c.vehicle == "ground":
+            self._next_nhc = t0 + c.nhc_period
+        self.t_start = t0
+        self._snaps.clear()
+        self._snap_now(t0)
+        self.events["started"] += 1
+
+    # ------------------------------------------------------------------ measurements
+    def add_velocity(self, stamp, v_enu, cov=None) -> bool:
+        """Velocity of the antenna (ENU, m/s) measured at ``stamp``; a NaN component is not
+        measured; ``cov`` (3, 3) ENU (m/s)^2 or None for ``velocity_noise``. Applied at its
+        stamp (see the module docstring). False (and a 'rejected' event) when refused."""
+        z = np.asarray(v_enu, dtype=float).reshape(-1)
+        if z.shape != (3,):
+            self._reject("measurement_invalid", None)
+            return False
+        if cov is None:
+            R = np.eye(3) * self.config.velocity_noise ** 2
+        else:
+            R = np.asarray(cov, dtype=float)
+            if R.shape != (3, 3):
+                self._reject("measurement_invalid", None)
+                return False
+        ok = np.isfinite(z)
+        if not ok.any():
+            self._reject("nonfinite", _fl(stamp))
+            return False
+        Rk = R[np.ix_(ok, ok)]
+        if not np.all(np.isfinite(Rk)) or np.any(np.diag(Rk) <= 0) or not np.allclose(Rk, Rk.T):
+            self._reject("measurement_invalid", _fl(stamp))
+            return False
+        try:
+            np.linalg.cholesky(Rk)
+        except np.linalg.LinAlgError:
+            self._reject("measurement_invalid", _fl(stamp))
+            return False
+        return self._add("velocity", stamp, (z, R))
+
+    def add_attitude(self, stamp, quaternion_xyzw, cov=None) -> bool:
+        """Attitude of a master INS (its body in ENU; axes taken equal to ours) at ``stamp``;
+        used only with ``attitude_matching``. ``cov`` (3, 3) rad^2 (body) or None."""
+        q = np.asarray(quaternion_xyzw, dtype=float).reshape(-1)
+        if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-6:
+            self._reject("measurement_invalid", _fl(stamp))
+            return False
+        if not self.config.attitude_matching:
+            self.events["attitude_ignored"] += 1
+            return True
+        R = (np.eye(3) * (self.config.attitude_noise_deg * DEG) ** 2 if cov is None
+             else np.asarray(cov, dtype=float))
+        if R.shape != (3, 3) or not np.all(np.isfinite(R)) or np.any(np.diag(R) <= 0):
+            self._reject("measurement_invalid", _fl(stamp))
+            return False
+        return self._add("attitude", stamp, (dcm_from_quat(q), R))
+
+    def add_position(self, stamp, lat_deg, lon_deg, height_m) -> bool:
+        """Geodetic position (NavSatFix): replaces the mechanized position (not estimated)."""
+        vals = (lat_deg, lon_deg, height_m)
+        if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in vals) or \
+                not -90.0 < lat_deg < 90.0:
+            self._reject("measurement_invalid", _fl(stamp))
+            return False
+        self.position = (lat_deg * DEG, lon_deg * DEG, float(height_m))
+        if self.ekf is not None:
+            self.ekf.lat, self.ekf.lon, self.ekf.h = self.position
+        self.events["position"] += 1
+        return True
+
+    def _add(self, kind, stamp, payload) -> bool:
+        try:
+            ts = float(stamp)
+        except (TypeError, ValueError):
+            ts = math.nan
+        if not math.isfinite(ts):
+            self._reject("nonfinite", None)
+            return False
+        c = self.config
+        if self.t_last is not None and ts < self.t_last - c.max_measurement_lag:
+            self._reject("measurement_too_late", ts)
+            return False
+        self._seq += 1
+        item = (ts, self._seq, kind, payload)
+        if self.ekf is None or ts > self.t_last:
+            bisect.insort(self._pending, item)
+            return True
+        # late: go back to a stored state before ts and run the samples again
+        if ts <= self.t_start:
+            self.events["measurement_before_start"] += 1
+            return True
+        self._rewind(item)
+        self._evaluate(self.t_last)
+        return True
+
+    def _rewind(self, item):
+        ts = item[0]
+        k = len(self._snaps) - 1
+        while k > 0 and self._snaps[k][0] >= ts:
+            k -= 1
+        t_s, ekf, nhc, logw, best = self._snaps[k]
+        while len(self._snaps) > k + 1:
+            self._snaps.pop()
+        self.ekf = ekf.copy()
+        self._next_nhc = nhc
+        self._logw = logw.copy()
+        self._best = best
+        redo = [a for a in self._applied if a[0] > t_s]
+        self._applied = deque(a for a in self._applied if a[0] <= t_s)
+        for a in redo + [item]:
+            bisect.insort(self._pending, a)
+        self._nis = deque(x for x in self._nis if x[0] <= t_s)
+        tt, ww, ff = self._history_after(t_s)
+        self.events["rewinds"] += 1
+        self._replaying = True
+        try:
+            self._process(t_s, tt, ww, ff)
+        finally:
+            self._replaying = False
+        self._snapshot()
+
+    def _history_after(self, t_s):
+        ts, ws, fs = [], [], []
+        for t, w, f in self._history:
+            if t[-1] <= t_s:
+                continue
+            m = t > t_s
+            ts.append(t[m])
+            ws.append(w[m])
+            fs.append(f[m])
+        if not ts:
+            return np.empty(0), np.empty((0, 3)), np.empty((0, 3))
+        return np.concatenate(ts), np.concatenate(ws), np.concatenate(fs)
+
+    # ------------------------------------------------------------------ the engine
+    def _process(self, prev, t, w, f):
+        """Propagate accepted samples t (after ``prev``) and apply the pending measurements
+        and constraints whose stamps they reach, each after the sample that reaches it."""
+        c = self.config
+        n = len(t)
+        k = 0
+        while k < n:
+            # the next event: a pending measurement or an NHC time
+            t_ev = self._pending[0][0] if self._pending else math.inf
+            if self._next_nhc is not None:
+                t_ev = min(t_ev, self._next_nhc)
+            e = int(np.searchsorted(t, t_ev, "left")) + 1   # first sample with t >= t_ev
+            e = min(max(e, k + 1), n) if t_ev <= t[-1] else n
+            p0 = prev if k == 0 else t[k - 1]
+            dts = np.diff(np.concatenate(([p0], t[k:e])))
+            self.ekf.propagate(dts, w[k:e], f[k:e])
+            t_now = float(t[e - 1])
+            while self._pending and self._pending[0][0] <= t_now:
+                item = self._pending.pop(0)
+                self._apply(item, t_now)
+                self._applied.append(item)
+            if self._next_nhc is not None and self._next_nhc <= t_now:
+                self._weigh(t_now, *self.ekf.update_lateral(c.nhc_axis, c.nhc_noise,
+                                                            c.nis_inflate), 1)
+                self.events["nhc"] += 1
+                self._next_nhc = t_now + c.nhc_period
+            if e < n:
+                self._snapshot(t_now)
+            k = e
+
+    def _apply(self, item, t_now):
+        ts, _, kind, payload = item
+        ekf = self.ekf
+        if kind == "velocity":
+            z, R = payload
+            # the measurement is of the instant ts, the state of t_now (>= ts, within a
+            # sample): move it by the acceleration over the difference
+            b = self._best
+            acc = ekf.C[b] @ ekf.f_last[b]
+            acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
+            z = z + (t_now - ts) * acc
+            nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate)
+            self.events["velocity"] += 1
+            if nis[self._best] > self.config.nis_inflate:
+                self.events["velocity_inflated"] += 1
+            self._weigh(t_now, nis, ll, int(np.isfinite(z).sum()))
+        elif kind == "attitude":
+            Cm, R = payload
+            nis, ll = ekf.update_attitude(Cm, R, self.config.nis_inflate)
+            self.events["attitude"] += 1
+            self._weigh(t_now, nis, ll, 3)
+        if not self._replaying:
+            self._evaluate(t_now)
+
+    def _weigh(self, t, nis, loglik, dof):
+        """After an update: the hypotheses' weights, pruning, collapse; the NIS record."""
+        if self.ekf.K > 1:
+            lw = self._logw + loglik
+            lw -= lw.max()
+            lw -= math.log(np.exp(lw).sum())
+            keep = lw >= math.log(HYPOTHESIS_MIN_WEIGHT)
+            best = int(np.argmax(lw))
+            # hypotheses that converged onto the best one merge into it: within 3 sigma of
+            # its own attitude uncertainty on every axis
+            d = attitude_error(self.ekf.C, self.ekf.C[best][None])
+            sd = np.sqrt(np.diag(self.ekf.covariance_enu[best]))
+            same = np.all(np.abs(d) <= 3.0 * sd, axis=1)
+            same[best] = False
+            if same.any():
+                lw[best] = np.logaddexp(lw[best], np.logaddexp.reduce(lw[same]))
+                keep &= ~same
+                self.events["hypotheses_merged"] += int(same.sum())
+            if lw.max() >= math.log(HYPOTHESIS_COLLAPSE):
+                keep = lw == lw.max()
+            if keep.sum() == 1:
+                self.events["heading_acquired"] += 1
+            if not keep.all():
+                self.ekf.select(keep)
+                lw, nis = lw[keep], nis[keep]
+                lw -= math.log(np.exp(lw).sum())
+            self._logw = lw
+            self._best = int(np.argmax(lw))
+        self._nis_add(t, float(nis[self._best]), dof)
+
+    def _nis_add(self, t, nis, dof):
+        self._nis.append((t, min(nis, 1e6), dof))
+        w = self.config.aligned_nis_window
+        while self._nis and self._nis[0][0] < t - w:
+            self._nis.popleft()
+
+    def _snapshot(self, t=None):
+        if self.ekf is None:
+            return
+        t = self.t_last if t is None else t
+        if self._snaps and self._snaps[-1][0] >= t:
+            return
+        self._snap_now(t)
+
+    def _snap_now(self, t):
+        self._snaps.append((t, self.ekf.copy(), self._next_nhc, self._logw.copy(), self._best))
+
+    def _prune(self):
+        keep = self.t_last - self.config.max_measurement_lag - _HISTORY_MARGIN
+        while len(self._snaps) > 1 and self._snaps[1][0] < keep:
+            self._snaps.popleft()
+        t_s = self._snaps[0][0]
+        while self._history and self._history[0][0][-1] <= t_s:
+            self._history.popleft()
+        while self._applied and self._applied[0][0] <= t_s:
+            self._applied.popleft()
+
+    # ------------------------------------------------------------------ the flag
+    def _evaluate(self, stamp):
+        c = self.config
+        if self.ekf is None:
+            return
+        std = self.std_enu_deg
+        self.heading_observable = bool(std[2] <= c.observable_heading_std_deg)
+        nis = self.nis
+        now = bool(self.heading_observable and self.ekf.K == 1
+                   and max(std[0], std[1]) <= c.aligned_level_std_deg
+                   and std[2] <= c.aligned_heading_std_deg
+                   and (math.isnan(nis) or nis <= c.aligned_nis))
+        if now != self._aligned:
+            self._aligned = now
+            if now and self.time_to_aligned is None:
+                self.time_to_aligned = self.elapsed
+            self._emit("aligned", stamp, now)
+
+    # ------------------------------------------------------------------ summary
+    def summary(self) -> dict:
+        """A JSON-ready snapshot of the result (node diagnostics, replay summary)."""
+        ok = self.ekf is not None
+        return {
+            "status": self.status,
+            "stage": "in_motion",
+            "aligned": self.aligned,
+            "time_to_aligned_s": self.time_to_aligned,
+            "elapsed_s": self.elapsed,
+            "samples_used": self.samples_used,
+            "rejected": dict(self.rejected),
+            "events": dict(self.events),
+            "heading_observable": self.heading_observable,
+            "heading_hypotheses": self.hypotheses,
+            "orientation_xyzw": self.quaternion.tolist(),
+            "rpy_deg": self.rpy_deg.tolist(),
+            "heading_deg": self.heading_deg,
+            "std_enu_deg": self.std_enu_deg.tolist(),
+            "velocity_enu_mps": self.velocity.tolist() if ok else None,
+            "bias_gyro_dph": (self.bias_gyro / DPH).tolist() if ok else None,
+            "bias_accel_mg": (self.bias_accel / 9.80665e-3).tolist() if ok else None,
+            "lever_arm_m": self.lever_arm.tolist(),
+            "nis": self.nis,
+        }
+
+
+def _fl(x):
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _level_dcm(up_body: np.ndarray, yaw: float) -> np.ndarray:
+    """C_b^n whose ENU up is ``up_body`` (a body unit vector) and whose yaw is ``yaw``
+    (REP-103, as far as the tilt allows: the roll/pitch/yaw decomposition of the levelled
+    attitude gets this yaw)."""
+    ux, uy, uz = up_body
+    pitch = math.atan2(-ux, math.hypot(uy, uz))
+    roll = math.atan2(uy, uz)
+    return dcm_from_rpy(np.array([roll, pitch, yaw]))
+

@@ -1,0 +1,119 @@
+"""Configuration of the in-motion aligner (:class:`MotionConfig`)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sins_align.core.specs import SensorSpecs, grade_specs
+
+#: vehicle kinds: 'ground' adds the non-holonomic constraint (no lateral body velocity)
+VEHICLES = ("ground", "air", "marine")
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Everything the in-motion aligner needs besides the data.
+
+    Attributes
+    ----------
+    latitude_deg, longitude_deg : deg; height_m : m — initial position (a NavSatFix given to
+        :meth:`MotionAligner.add_position` replaces it).
+    specs : SensorSpecs or a grade name ('navigation', 'tactical', 'consumer'): the bias
+        priors and noise densities of the filter.
+    lever_arm : (3,) m, IMU frame — from the IMU to the antenna of the velocity reference.
+    lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (15 states).
+    velocity_noise : m/s — 1-sigma of a velocity measurement that comes without covariance.
+    max_measurement_lag : s — a measurement stamped up to this long before the newest IMU
+        sample is applied at its stamp (the filter rewinds); older ones are refused.
+    vehicle : 'ground' | 'air' | 'marine'; 'ground' applies the non-holonomic constraint.
+    nhc_noise : m/s — 1-sigma of the lateral body velocity of a ground vehicle (sideslip).
+    nhc_axis : 0, 1, 2 — the IMU axis that points to the vehicle's side (REP-103 IMU mounted
+        x forward, y left: 1).
+    nhc_period : s — interval of the non-holonomic updates.
+    initial_rpy_deg : REP-103 roll, pitch, yaw guess, or None. Roll and pitch are always
+        taken from the accelerometers at the start (any start converges, upside down too);
+        the yaw is the heading guess.
+    initial_heading_std_deg : 1-sigma of that guess. Up to 30 deg it is a guess and one
+        filter starts from it; above (or without a guess) the heading is unknown, and a bank
+        of ``heading_hypotheses`` filters starts, their yaws evenly spread around the circle
+        (a Gaussian sum, as PX4's EKF-GSF yaw estimator does), each weighed by how well it
+        predicts the measurements; the bank collapses to one filter once one holds 99.9 %.
+    heading_hypotheses : size of that bank (>= 2).
+    init_time : s — accelerometer averaging for the initial level.
+    attitude_matching : use the master attitudes given to :meth:`MotionAligner.add_attitude`.
+    attitude_noise_deg : 1-sigma per axis of a master attitude that comes without covariance.
+    nis_inflate : a measurement whose normalised innovation per degree of freedom exceeds this
+        has its noise inflated until it equals it (large early transients, skids, outliers).
+    max_gap : s — IMU stamp gaps above this restart the alignment.
+    max_angular_rate : rad/s; specific_force_max : m/s^2 — samples above are rejected.
+    observable_heading_std_deg : heading counts as observable once its std is below this.
+    aligned_level_std_deg, aligned_heading_std_deg : the aligned criterion (with the heading
+        observable and the recent innovations consistent).
+    aligned_nis : mean NIS per degree of freedom over the last ``aligned_nis_window`` s above
+        which the flag is held down.
+    """
+
+    latitude_deg: float
+    longitude_deg: float = 0.0
+    height_m: float = 0.0
+    specs: SensorSpecs | str = "consumer"
+    lever_arm: tuple = (0.0, 0.0, 0.0)
+    lever_arm_std: float = 0.0
+    velocity_noise: float = 0.1
+    max_measurement_lag: float = 0.5
+    vehicle: str = "air"
+    nhc_noise: float = 0.1
+    nhc_axis: int = 1
+    nhc_period: float = 0.1
+    initial_rpy_deg: tuple | None = None
+    initial_heading_std_deg: float = 180.0
+    heading_hypotheses: int = 12
+    init_time: float = 0.5
+    attitude_matching: bool = False
+    attitude_noise_deg: float = 0.1
+    nis_inflate: float = 5.0
+    max_gap: float = 1.0
+    max_angular_rate: float = 10.0
+    specific_force_max: float = 160.0
+    observable_heading_std_deg: float = 5.0
+    aligned_level_std_deg: float = 0.3
+    aligned_heading_std_deg: float = 2.0
+    aligned_nis: float = 3.0
+    aligned_nis_window: float = 10.0
+
+    def __post_init__(self):
+        if isinstance(self.specs, str):
+            object.__setattr__(self, "specs", grade_specs(self.specs))
+        if not isinstance(self.specs, SensorSpecs):
+            raise ValueError("specs must be a SensorSpecs or a grade name")
+        lev = tuple(float(x) for x in np.asarray(self.lever_arm, dtype=float).reshape(3))
+        object.__setattr__(self, "lever_arm", lev)
+        if self.initial_rpy_deg is not None:
+            object.__setattr__(self, "initial_rpy_deg", tuple(
+                float(x) for x in np.asarray(self.initial_rpy_deg, dtype=float).reshape(3)))
+        if self.vehicle not in VEHICLES:
+            raise ValueError(f"vehicle must be one of {VEHICLES}, got {self.vehicle!r}")
+        if not (isinstance(self.heading_hypotheses, int) and 2 <= self.heading_hypotheses <= 72):
+            raise ValueError(f"heading_hypotheses must be an integer 2..72, got "
+                             f"{self.heading_hypotheses!r}")
+        if self.nhc_axis not in (0, 1, 2):
+            raise ValueError(f"nhc_axis must be 0, 1 or 2, got {self.nhc_axis!r}")
+        if not (-90.0 < self.latitude_deg < 90.0):
+            raise ValueError(f"latitude_deg must be within (-90, 90), got {self.latitude_deg!r}")
+        positive = ("velocity_noise", "nhc_noise", "nhc_period", "init_time",
+                    "attitude_noise_deg", "nis_inflate", "max_gap", "max_angular_rate",
+                    "specific_force_max", "observable_heading_std_deg",
+                    "aligned_level_std_deg", "aligned_heading_std_deg", "aligned_nis",
+                    "aligned_nis_window", "initial_heading_std_deg")
+        for name in positive:
+            x = getattr(self, name)
+            if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
+        for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m"):
+            x = getattr(self, name)
+            if not (isinstance(x, (int, float)) and math.isfinite(x)):
+                raise ValueError(f"{name} must be finite, got {x!r}")
+        if self.lever_arm_std < 0 or self.max_measurement_lag < 0:
+            raise ValueError("lever_arm_std and max_measurement_lag must be >= 0")

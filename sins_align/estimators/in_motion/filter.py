@@ -1,0 +1,411 @@
+"""Left-invariant error-state Kalman filter on a moving base (numpy only; seed 003).
+
+A bank of K such filters runs at once (a leading batch axis on every array): the heading
+hypotheses of :class:`~sins_align.estimators.in_motion.aligner.MotionAligner` while the
+heading is unknown (a Gaussian sum), one filter afterwards.
+
+State and error
+---------------
+The navigation state is ``X = (C, v)`` with ``C = C_b^n`` (body to local ENU) and ``v = v^n``
+(ENU, m/s), plus geodetic position (lat, lon, h; mechanized, not estimated), the gyro and
+accelerometer biases ``b_g``, ``b_a`` (body, rad/s and m/s^2) and, optionally, the lever arm
+``l`` (body, m, IMU to the antenna of the velocity reference).
+
+The error is left-invariant (``eta = X^-1 X_hat``, ALGORITHM.md): with the estimate ``X_hat``,
+
+    C_hat = C exp(phi x)            phi: attitude error, body axes (rad)
+    v_hat = v + C nu                nu:  velocity error, body axes (m/s)
+    b_hat = b + zeta                zeta_g, zeta_a: bias errors
+    l_hat = l + dl
+
+so the error vector is ``x = [phi, nu, zeta_g, zeta_a(, dl)]``: 12 states, 15 with the lever
+arm (the issue and ALGORITHM.md say 15 for (C, v) in SE(3) and two biases: that is 6 + 6 = 12;
+position is mechanized but not estimated, since a velocity reference says nothing of it).
+
+Error dynamics (first order; w_hat = gyro - b_g_hat, f_hat = accel - b_a_hat)::
+
+    d phi/dt = -(w_hat x) phi - zeta_g + n_g
+    d nu/dt  = -(w_hat x) nu - (f_hat x) phi - zeta_a + n_a
+    d zeta/dt = n_b (random walks), d dl/dt = 0
+
+Two terms are left out, both below 1e-4 of what is kept on any vehicle: the rotation of ``nu``
+by the Earth rate in body axes (``-(C^T w_ie x) nu``: 7e-5 rad/s on a velocity error), and
+the transport-rate difference caused by the velocity error (``nu / R``). What makes the
+left-invariant form worth it shows here: the attitude/velocity block depends only on the
+measured rates and specific force, not on the attitude estimate, so a wrong start
+(upside down, heading off by 175 deg) does not corrupt the model the filter runs on.
+
+Discrete propagation over a run of samples
+------------------------------------------
+With ``Gamma_j`` the body rotation from the start of the run to the end of sample j
+(``Gamma_j = Gamma_{j-1} exp(w_hat_j dt_j)``) and ``dV_j = Gamma_{j-1} exp(w_hat_j dt_j / 2)
+f_hat_j dt_j`` the velocity increment of sample j in the start's body axes, each sample maps
+``phi -> rho^T (phi - h dt zeta_g)`` and ``nu -> rho^T (nu - (dV x) (phi - h dt zeta_g / 2)
+- h dt zeta_a)`` (``rho = exp(w_hat dt)``, ``h = exp(w_hat dt / 2)``, ``dV`` in the sample's
+own start axes: the bias acts at the middle of the sample, and the tilt that turns the
+specific force is the one of the middle too). Their product over m samples is, in closed form
+(``R_j = Gamma_{j-1} h_j``, ``S_j = sum_{i<=j} R_i dt_i``, ``V = sum dV_j``,
+``M = sum_j (dV_j x) (S_j - R_j dt_j / 2)``)::
+
+    phi_m = Gamma_m^T (phi_0 - S_m zeta_g)
+    nu_m  = Gamma_m^T (nu_0 - (V x) phi_0 + M zeta_g - S_m zeta_a)
+
+which :meth:`InvariantEKF.propagate` evaluates with cumulative sums (exactly the product of
+the per-sample maps). White noise enters after every sample (``q_g dt`` on phi, ``q_a dt`` on
+nu, ``q_b dt`` on the biases); its sum over the run is also closed form
+(``D_j = V - V_j``): ``Cov(phi) = q_g T``, ``Cov(phi, nu) = Gamma^T q_g (sum dt_j D_j x) Gamma``,
+``Cov(nu) = q_a T + Gamma^T q_g sum dt_j (|D_j|^2 I - D_j D_j^T) Gamma`` (bias noise entering
+the attitude and velocity within one run, of order q_b T^3, is left out; runs are at most
+:data:`MAX_RUN` s).
+
+The mechanization of the run is vectorised the same way: ``Gamma_j`` by a parallel prefix
+product of quaternions, the navigation frame's rotation ``w_in`` and gravity and Coriolis held
+at the run's start (their change within :data:`MAX_RUN` s moves the attitude by < 1e-8 rad);
+:func:`propagate_reference` is the per-sample reference it is tested against.
+
+Measurements
+------------
+Velocity of the antenna in ENU: ``z = v + C (w_nb x l) + n``, ``w_nb = w - C^T w_in``; with
+``a = C_hat^T w_in`` and ``u = w_hat_nb x l_hat``, the residual ``y = z - z_hat`` is
+``C_hat [ (u x) - (l x)(a x) , -I , -(l x) , 0 , -(w_hat_nb x) ] x + n``.
+Non-holonomic (ground vehicle): the lateral body velocity is zero:
+``y = -e^T C_hat^T v_hat = -e^T [ (v_b x), I, 0, 0 ] x``.
+Attitude of a master (body axes equal to ours): ``C_m = C exp(n x)`` gives
+``y = log(C_hat^T C_m) = phi`` to first order... (see :meth:`update_attitude`).
+
+After an update the error estimate is fed back in full (``X <- X_hat eta_hat^-1``,
+biases and lever arm subtract) and the covariance is kept as updated (Joseph form); no
+first-order reset correction is applied (ALGORITHM.md: it manufactures correlations after
+the large early corrections).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sins_align.core.earth import GRAVITY_PER_METRE, OMEGA_IE, normal_gravity, radii
+from sins_align.core.rotation import (dcm_from_quat, quat_from_rotvec, quat_multiply, skew,
+                                      so3_exp, so3_log)
+from sins_align.core.strapdown import NavState, mechanize
+
+__all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "IPHI", "INU",
+           "IBG", "IBA", "ILEV"]
+
+#: longest run of samples propagated in one closed-form step, s
+MAX_RUN = 1.0
+
+IPHI, INU, IBG, IBA, ILEV = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12),
+                             slice(12, 15))  # 12 states, 15 with the lever arm
+_I3 = np.eye(3)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """White-noise densities of the error model.
+
+    gyro_arw : rad/sqrt(s); accel_vrw : m/s/sqrt(s); gyro_bias_walk : rad/s/sqrt(s);
+    accel_bias_walk : m/s^2/sqrt(s).
+    """
+
+    gyro_arw: float
+    accel_vrw: float
+    gyro_bias_walk: float
+    accel_bias_walk: float
+
+
+def _w_in(v, lat, h):
+    """Earth rate and transport rate, ENU, for (K, 3) velocities and (K,) lat, h."""
+    rm, rn = radii(lat)
+    cl, sl = np.cos(lat), np.sin(lat)
+    w_ie = OMEGA_IE * np.stack([np.zeros_like(lat), cl, sl], -1)
+    ve = v[..., 0] / (rn + h)
+    w_en = np.stack([-v[..., 1] / (rm + h), ve, ve * sl / cl], -1)
+    return w_ie, w_en
+
+
+def _prefix_quat(q: np.ndarray) -> np.ndarray:
+    """Inclusive prefix products q_1 q_2 ... q_j along axis 1 of (K, m, 4) quaternions."""
+    q = q.copy()
+    s = 1
+    m = q.shape[1]
+    while s < m:
+        q[:, s:] = quat_multiply(q[:, :-s], q[:, s:])
+        s *= 2
+    return q
+
+
+def _mT(a):
+    return np.swapaxes(a, -1, -2)
+
+
+class InvariantEKF:
+    """A bank of K filters: states, covariances and the operations on them (no stream logic).
+
+    Attributes (K = number of filters)
+    ----------
+    C (K, 3, 3), v (K, 3), lat, lon, h (K,), bg, ba, lever (K, 3), P (K, n, n) with n = 12,
+    or 15 with the lever arm; w_last, f_last (K, 3): the last bias-corrected rate and
+    specific force.
+
+    Parameters
+    ----------
+    state : NavState — the start, shared by all filters, except:
+    C : optional (K, 3, 3) attitudes (the hypotheses); default ``state.C`` once.
+    P0 : (n, n) or (K, n, n) — initial error covariance(s).
+    noise : NoiseModel.
+    lever_arm : (3,) m, body — initial lever arm.
+    """
+
+    def __init__(self, state: NavState, P0, noise: NoiseModel, lever_arm=(0, 0, 0), C=None):
+        C = state.C[None] if C is None else np.asarray(C, dtype=float).reshape(-1, 3, 3)
+        K = len(C)
+        self.C = C.copy()
+        self.v = np.tile(state.v, (K, 1))
+        self.lat = np.full(K, state.lat)
+        self.lon = np.full(K, state.lon)
+        self.h = np.full(K, state.h)
+        P0 = np.asarray(P0, dtype=float)
+        self.P = np.broadcast_to(P0, (K,) + P0.shape[-2:]).copy()
+        self.n = self.P.shape[-1]
+        if self.P.shape[-2:] not in ((12, 12), (15, 15)):
+            raise ValueError("P0 must be 12x12 or 15x15 (with the lever arm)")
+        self.noise = noise
+        self.bg = np.zeros((K, 3))
+        self.ba = np.zeros((K, 3))
+        self.lever = np.tile(np.asarray(lever_arm, dtype=float).reshape(3), (K, 1))
+        self.w_last = np.zeros((K, 3))
+        self.f_last = np.zeros((K, 3))
+
+    _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "w_last", "f_last")
+
+    @property
+    def K(self) -> int:
+        return len(self.C)
+
+    def copy(self) -> "InvariantEKF":
+        new = InvariantEKF.__new__(InvariantEKF)
+        new.__dict__.update(self.__dict__)
+        for k in self._ARRAYS:
+            setattr(new, k, getattr(self, k).copy())
+        return new
+
+    def select(self, index) -> None:
+        """Keep only the filters ``index`` (an index array or a boolean mask)."""
+        for k in self._ARRAYS:
+            setattr(self, k, getattr(self, k)[index])
+
+    def nav(self, i: int = 0) -> NavState:
+        return NavState(self.C[i], self.v[i], self.lat[i], self.lon[i], self.h[i])
+
+    @property
+    def covariance_enu(self) -> np.ndarray:
+        """(K, 3, 3): covariance of the attitude error in ENU (C_true = exp(e x) C_hat,
+        e = -C_hat phi)."""
+        return self.C @ self.P[:, IPHI, IPHI] @ _mT(self.C)
+
+    # ------------------------------------------------------------ propagation
+    def propagate(self, dt, gyro, accel) -> None:
+        """Propagate over samples (dt (m,), gyro and accel (m, 3)) in runs of at most MAX_RUN s."""
+        dt = np.asarray(dt, dtype=float).reshape(-1)
+        gyro = np.asarray(gyro, dtype=float).reshape(-1, 3)
+        accel = np.asarray(accel, dtype=float).reshape(-1, 3)
+        m = len(dt)
+        if m == 0:
+            return
+        tt = np.cumsum(dt)
+        k = 0
+        while k < m:
+            e = k + max(1, int(np.searchsorted(tt[k:], tt[k] - dt[k] + MAX_RUN, "right")))
+            self._run(dt[k:e], gyro[k:e], accel[k:e])
+            k = e
+
+    def _run(self, dt, gyro, accel):
+        w = gyro[None] - self.bg[:, None]            # (K, m, 3)
+        f = accel[None] - self.ba[:, None]
+        rv = w * dt[None, :, None]
+        q = quat_from_rotvec(np.concatenate([rv, 0.5 * rv], 0))
+        K = len(w)
+        q_full, q_half = q[:K], q[K:]
+        G = _prefix_quat(q_full)                     # Gamma_j, j = 1..m
+        Gprev = np.concatenate([np.broadcast_to([0.0, 0.0, 0.0, 1.0], (K, 1, 4)), G[:, :-1]], 1)
+        R_mid = dcm_from_quat(quat_multiply(Gprev, q_half))    # (K, m, 3, 3)
+        Gm = dcm_from_quat(G[:, -1])                 # (K, 3, 3)
+        dV = np.einsum("kmij,kmj->kmi", R_mid, f) * dt[None, :, None]
+        V = np.cumsum(dV, axis=1)
+        Ttot = float(dt.sum())
+        # ---------------------------------------------------------- covariance
+        Rdt = R_mid * dt[None, :, None, None]
+        S = np.cumsum(Rdt, axis=1)
+        Mx = np.einsum("kmij,kmjl->kil", skew(dV), S - 0.5 * Rdt)
+        GmT = _mT(Gm)
+        Vm = V[:, -1]
+        n = self.n
+        Phi = np.broadcast_to(np.eye(n), (K, n, n)).copy()
+        Phi[:, IPHI, IPHI] = GmT
+        GS = GmT @ S[:, -1]
+        Phi[:, IPHI, IBG] = -GS
+        Phi[:, INU, IPHI] = -GmT @ skew(Vm)
+        Phi[:, INU, INU] = GmT
+        Phi[:, INU, IBG] = GmT @ Mx
+        Phi[:, INU, IBA] = -GS
+        nz = self.noise
+        qg, qa = nz.gyro_arw ** 2, nz.accel_vrw ** 2
+        D = Vm[:, None] - V                          # (K, m, 3)
+        A = np.einsum("m,kmi->ki", dt, D)
+        d2 = np.einsum("m,kmi,kmi->k", dt, D, D)
+        B = d2[:, None, None] * _I3 - np.einsum("m,kmi,kmj->kij", dt, D, D)
+        Q = np.zeros((K, n, n))
+        Q[:, IPHI, IPHI] = qg * Ttot * _I3
+        c = qg * (GmT @ skew(A) @ Gm)
+        Q[:, IPHI, INU] = c
+        Q[:, INU, IPHI] = _mT(c)
+        Q[:, INU, INU] = qa * Ttot * _I3 + qg * (GmT @ B @ Gm)
+        Q[:, IBG, IBG] = nz.gyro_bias_walk ** 2 * Ttot * _I3
+        Q[:, IBA, IBA] = nz.accel_bias_walk ** 2 * Ttot * _I3
+        P = Phi @ self.P @ _mT(Phi) + Q
+        self.P = 0.5 * (P + _mT(P))
+        # ---------------------------------------------------------- mechanization
+        C0, v0, lat0, h0 = self.C, self.v, self.lat, self.h
+        w_ie, w_en = _w_in(v0, lat0, h0)
+        w_in = w_ie + w_en                           # (K, 3)
+        Om = 2.0 * w_ie + w_en
+        g0 = normal_gravity(lat0, h0)                # (K,)
+        T = np.cumsum(dt)
+        t_mid = T - 0.5 * dt
+        dvn = np.einsum("kij,kmj->kmi", C0, dV)      # specific-force increments, n (start)
+        dvn = dvn - np.cross(w_in[:, None], dvn) * t_mid[None, :, None]
+        dvn[..., 2] -= g0[:, None] * dt[None]
+        v_pre = v0[:, None] + np.cumsum(dvn, axis=1)
+        v_prev = np.concatenate([v0[:, None], v_pre[:, :-1]], 1)
+        v_mid = 0.5 * (v_prev + v_pre)
+        vz_dt = v_mid[..., 2] * dt[None]
+        h_mid = h0[:, None] + np.cumsum(vz_dt, axis=1) - 0.5 * vz_dt
+        acc = -np.cross(Om[:, None], v_mid)
+        acc[..., 2] += GRAVITY_PER_METRE * (h_mid - h0[:, None])
+        v_new = v_pre + np.cumsum(acc * dt[None, :, None], axis=1)
+        v_prev = np.concatenate([v0[:, None], v_new[:, :-1]], 1)
+        v_avg = 0.5 * (v_prev + v_new)
+        rm, rn = radii(lat0)
+        dlat = v_avg[..., 1] / (rm[:, None] + h_mid) * dt[None]
+        lat_mid = lat0[:, None] + np.cumsum(dlat, axis=1) - 0.5 * dlat
+        dlon = v_avg[..., 0] / ((rn[:, None] + h_mid) * np.cos(lat_mid)) * dt[None]
+        lat1 = lat0 + dlat.sum(1)
+        self.lon = self.lon + dlon.sum(1)
+        self.h = h0 + (v_avg[..., 2] * dt[None]).sum(1)
+        self.v = v_new[:, -1].copy()
+        w_ie, w_en = _w_in(v_avg.mean(axis=1), 0.5 * (lat0 + lat1), h_mid.mean(axis=1))
+        self.lat = lat1
+        self.C = so3_exp(-(w_ie + w_en) * Ttot) @ C0 @ Gm   # the run's mean frame rate
+        self.w_last = w[:, -1].copy()
+        self.f_last = f[:, -1].copy()
+
+    # ---------------------------------------------------------------- updates
+    def _apply(self, y, H, R, nis_limit=None):
+        """Kalman update of every filter: residuals y (K, d), models H (K, d, n), noise R
+        (d, d) or (K, d, d); feeds the estimates back. Returns (NIS per degree of freedom
+        before any inflation (K,), log-likelihood of y (K,))."""
+        P = self.P
+        HT = _mT(H)
+        S = H @ P @ HT + R
+        Sinv = np.linalg.inv(S)
+        d = y.shape[-1]
+        maha = np.einsum("ki,kij,kj->k", y, Sinv, y)
+        nis = maha / d
+        loglik = -0.5 * (maha + np.linalg.slogdet(S)[1] + d * math.log(2.0 * math.pi))
+        R = np.broadcast_to(R, S.shape)
+        if nis_limit is not None:
+            a = np.maximum(nis / nis_limit, 1.0)
+            R = R + (a - 1.0)[:, None, None] * S
+            Sinv = Sinv / a[:, None, None]
+        Kg = P @ HT @ Sinv
+        dx = np.einsum("kij,kj->ki", Kg, y)
+        IKH = np.eye(self.n) - Kg @ H
+        P = IKH @ P @ _mT(IKH) + Kg @ R @ _mT(Kg)
+        self.P = 0.5 * (P + _mT(P))
+        self.feedback(dx)
+        return nis, loglik
+
+    def feedback(self, dx) -> None:
+        """Remove estimated errors ``dx`` (K, n) from the states (full reset)."""
+        self.C = self.C @ so3_exp(-dx[:, IPHI])
+        self.v = self.v - np.einsum("kij,kj->ki", self.C, dx[:, INU])
+        self.bg = self.bg - dx[:, IBG]
+        self.ba = self.ba - dx[:, IBA]
+        if self.n == 15:
+            self.lever = self.lever - dx[:, ILEV]
+
+    def velocity_model(self):
+        """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state."""
+        C, lever = self.C, self.lever
+        w_ie, w_en = _w_in(self.v, self.lat, self.h)
+        a = np.einsum("kji,kj->ki", C, w_ie + w_en)
+        w_nb = self.w_last - a
+        u = np.cross(w_nb, lever)
+        z_hat = self.v + np.einsum("kij,kj->ki", C, u)
+        K = self.K
+        Hb = np.zeros((K, 3, self.n))
+        Hb[:, :, IPHI] = skew(u) - skew(lever) @ skew(a)
+        Hb[:, :, INU] = -_I3
+        Hb[:, :, IBG] = -skew(lever)
+        if self.n == 15:
+            Hb[:, :, ILEV] = -skew(w_nb)
+        return z_hat, C @ Hb
+
+    def update_velocity(self, z, R, nis_limit=None):
+        """Velocity of the antenna, ENU (3,); NaN components are not measured; R (3, 3).
+        Returns (NIS per dof, log-likelihood), each (K,)."""
+        z = np.asarray(z, dtype=float)
+        z_hat, H = self.velocity_model()
+        ok = np.isfinite(z)
+        R = np.asarray(R, dtype=float)[np.ix_(ok, ok)]
+        return self._apply((z - z_hat)[:, ok], H[:, ok], R, nis_limit)
+
+    def update_lateral(self, axis: int, sigma: float, nis_limit=None):
+        """Non-holonomic constraint: the body velocity along ``axis`` is zero (+- sigma)."""
+        vb = np.einsum("kji,kj->ki", self.C, self.v)
+        H = np.zeros((self.K, 1, self.n))
+        H[:, 0, IPHI] = -skew(vb)[:, axis, :]
+        H[:, 0, INU] = -_I3[axis]
+        return self._apply(-vb[:, axis:axis + 1], H, np.array([[sigma * sigma]]), nis_limit)
+
+    def update_attitude(self, C_ref, R, nis_limit=None):
+        """Attitude of a reference (body axes equal to ours): ``C_ref = C exp(n x)`` with n of
+        covariance R (body, rad^2). The residual ``log(C_hat^T C_ref)`` is ``-phi + n``."""
+        y = so3_log(_mT(self.C) @ np.asarray(C_ref, dtype=float))
+        H = np.zeros((self.K, 3, self.n))
+        H[:, :, IPHI] = -_I3
+        return self._apply(y, H, np.asarray(R, dtype=float), nis_limit)
+
+
+def propagate_reference(ekf: InvariantEKF, dt, gyro, accel) -> None:
+    """Per-sample reference of :meth:`InvariantEKF.propagate` (filter 0 of the bank): the
+    strapdown mechanization (:func:`sins_align.core.strapdown.mechanize`) and each sample's
+    transition and noise applied one after the other. Slow; for tests."""
+    nz = ekf.noise
+    n = ekf.n
+    for d, g, a in zip(np.asarray(dt, float).reshape(-1), np.asarray(gyro, float).reshape(-1, 3),
+                       np.asarray(accel, float).reshape(-1, 3)):
+        w = g - ekf.bg[0]
+        f = a - ekf.ba[0]
+        rho = so3_exp(w * d)
+        half = so3_exp(0.5 * w * d)
+        dV = half @ f * d
+        Phi = np.eye(n)
+        Phi[IPHI, IPHI] = rho.T
+        Phi[IPHI, IBG] = -d * rho.T @ half
+        Phi[INU, IPHI] = -rho.T @ skew(dV)
+        Phi[INU, INU] = rho.T
+        Phi[INU, IBG] = 0.5 * d * rho.T @ skew(dV) @ half
+        Phi[INU, IBA] = -d * rho.T @ half
+        Q = np.zeros((n, n))
+        Q[IPHI, IPHI] = nz.gyro_arw ** 2 * d * _I3
+        Q[INU, INU] = nz.accel_vrw ** 2 * d * _I3
+        Q[IBG, IBG] = nz.gyro_bias_walk ** 2 * d * _I3
+        Q[IBA, IBA] = nz.accel_bias_walk ** 2 * d * _I3
+        ekf.P[0] = Phi @ ekf.P[0] @ Phi.T + Q
+        s = mechanize(ekf.nav(0), d, w, f)
+        ekf.C[0], ekf.v[0], ekf.lat[0], ekf.lon[0], ekf.h[0] = s.C, s.v, s.lat, s.lon, s.h
+        ekf.w_last[0] = w
+        ekf.f_last[0] = f
