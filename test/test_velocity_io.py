@@ -110,11 +110,41 @@ def test_unknown_twist_covariance_is_none(source, first):
     assert v.cov_enu is None
 
 
+def test_a_linear_block_of_zeros_is_unknown_even_with_the_angular_part_marked(source):
+    """What a receiver with an exact (or no) velocity accuracy sends: the linear variances 0,
+    the angular one -1 (not provided)."""
+    cov = [0.0] * 36
+    cov[21] = -1.0
+    v, _ = vel.from_twist_with_covariance(source(_twist_cov((1.0, 2.0, 0.5), cov)), "enu",
+                                          _clock())
+    assert v.cov_enu is None
+    np.testing.assert_array_equal(v.v_enu, [1.0, 2.0, 0.5])
+
+
+@pytest.mark.parametrize("frame, expected", [("enu", [3.0, 4.0, math.nan]),
+                                             ("ned", [4.0, 3.0, math.nan])])
+def test_a_variance_of_minus_one_on_one_axis_means_that_component_is_not_provided(
+        source, frame, expected):
+    """A receiver without vertical velocity: variance (2, 2) = -1 and z 0 or NaN. The vertical
+    is not measured (NaN) and its row and column drop out; E and N keep theirs."""
+    lin = np.array([[0.04, 0.01, 0.0], [0.01, 0.09, 0.0], [0.0, 0.0, -1.0]])
+    cov = _cov36(lin)
+    cov[21] = -1.0
+    v, _ = vel.from_twist_with_covariance(source(_twist_cov((3.0, 4.0, 0.0), cov)), frame,
+                                          _clock())
+    np.testing.assert_array_equal(v.v_enu, expected)
+    horizontal = lin[:2, :2] if frame == "enu" else lin[:2, :2][::-1, ::-1]
+    np.testing.assert_array_equal(v.cov_enu[:2, :2], horizontal)
+    assert math.isnan(v.cov_enu[2, 2])
+    assert not v.cov_enu[2, :2].any() and not v.cov_enu[:2, 2].any()
+
+
 @pytest.mark.parametrize("diag, reason", [
     ((0.01, -0.01, 0.01), "negative_variance"),
+    ((0.01, 0.01, -2.0), "negative_variance"),
     ((0.01, math.nan, 0.01), "nonfinite"),
     ((0.01, 0.01, math.inf), "nonfinite"),
-], ids=["negative", "nan", "inf"])
+], ids=["negative", "minus-two", "nan", "inf"])
 def test_bad_twist_variance_refuses_the_message(source, diag, reason):
     m = source(_twist_cov((1.0, 0.0, 0.0), _cov36(np.diag(diag))))
     with pytest.raises(vel.Refused) as e:
@@ -205,6 +235,14 @@ def test_odometry_in_ned_gives_enu_velocity_and_attitude(source):
     q = att.quaternion_xyzw * np.sign(att.quaternion_xyzw[0])
     np.testing.assert_allclose(q, [1.0, 0.0, 0.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(att.cov_enu, np.diag([2e-6, 1e-6, 3e-6]), atol=1e-18)
+
+
+def test_odometry_twist_with_an_axis_not_provided_is_refused():
+    """A body velocity with a component missing cannot be rotated into the world frame."""
+    lin = np.diag([0.01, 0.01, -1.0])
+    with pytest.raises(vel.Refused) as e:
+        vel.odometry_velocity((10.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), _cov36(lin), "enu")
+    assert e.value.reason == "nonfinite" and "cannot be rotated" in str(e.value)
 
 
 def test_odometry_non_unit_quaternion_is_normalised_within_tolerance():

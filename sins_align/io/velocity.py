@@ -16,8 +16,10 @@ Conventions
   (:data:`NED_TO_ENU`, a proper rotation), and the covariance is permuted with it.
 - ``geometry_msgs/TwistWithCovarianceStamped`` (ublox_gps ``fix_velocity``: ENU; Septentrio
   ``twist_gnss``: ENU or NED): ``twist.twist.linear`` in the world frame; the covariance is
-  6x6 row-major (linear part = top-left 3x3). All zeros, or -1 as its first element, means
-  unknown (None). A negative or non-finite variance refuses the message.
+  6x6 row-major (linear part = top-left 3x3). All zeros (on the provided axes), or -1 as its
+  first element, means unknown (None); a variance of exactly -1 on one axis means that
+  component is not provided (a receiver without vertical velocity): NaN. Any other negative
+  or a non-finite variance refuses the message.
 - ``geometry_msgs/TwistStamped`` (nmea_navsat_driver ``vel``: x East, y North): horizontal
   only. Its z is never used (the driver has no vertical velocity and writes 0): vertical =
   NaN; no covariance.
@@ -108,32 +110,45 @@ def _check_frame(frame: str) -> None:
 
 
 # ----------------------------------------------------------------------------- plain fields
-def covariance_block(cov6x6, first: int = 0, what: str = "twist") -> np.ndarray | None:
+def covariance_block(cov6x6, first: int = 0, what: str = "twist"
+                     ) -> tuple[np.ndarray | None, np.ndarray]:
     """The 3x3 block at ``(first, first)`` of a row-major 6x6 covariance (36 values; 0 = the
-    linear part of a twist, 3 = the orientation part of a pose), or None when the covariance
-    is unknown (all 36 values zero, or -1 as the first element).
+    linear part of a twist, 3 = the orientation part of a pose), and which of its 3 axes are
+    not provided (a variance of exactly -1 on the diagonal: a receiver without vertical
+    velocity).
+
+    The block is None when the covariance is unknown: -1 as the first of the 36 values, or
+    the block all zeros on the provided axes. Otherwise the rows and columns of the axes not
+    provided are zero with a NaN variance.
 
     Raises :class:`Refused` for a non-finite value, a negative variance or a block that is
-    not positive semi-definite.
+    not positive semi-definite (on the provided axes).
     """
     c = np.asarray(cov6x6, dtype=float).reshape(-1)
     if c.size != 36:
         raise ValueError(f"a 6x6 covariance has 36 values, got {c.size}")
-    if c[0] == -1.0 or not c.any():
-        return None
     block = c.reshape(6, 6)[first:first + 3, first:first + 3].copy()
-    if not np.isfinite(block).all():
+    missing = np.diag(block) == -1.0
+    if c[0] == -1.0:
+        return None, missing
+    keep = ~missing
+    sub = block[np.ix_(keep, keep)]
+    if not np.isfinite(sub).all():
         raise Refused("nonfinite", f"{what} covariance has a non-finite value")
-    d = np.diag(block)
+    d = np.diag(sub)
     if (d < 0.0).any():
         listed = ", ".join(f"{x:g}" for x in d)
         raise Refused("negative_variance",
                       f"{what} covariance has a negative variance ({listed})")
-    block = 0.5 * (block + block.T)
-    scale = max(float(d.max()), 1e-300)
-    if float(np.linalg.eigvalsh(block).min()) < -1e-9 * scale:
+    if not sub.any():
+        return None, missing
+    sub = 0.5 * (sub + sub.T)
+    if float(np.linalg.eigvalsh(sub).min()) < -1e-9 * float(d.max()):
         raise Refused("covariance_not_psd", f"{what} covariance is not positive semi-definite")
-    return block
+    out = np.zeros((3, 3))
+    out[np.ix_(keep, keep)] = sub
+    out[missing, missing] = math.nan
+    return out, missing
 
 
 def to_enu(v, cov: np.ndarray | None, frame: str) -> tuple[np.ndarray, np.ndarray | None]:
@@ -146,20 +161,24 @@ def to_enu(v, cov: np.ndarray | None, frame: str) -> tuple[np.ndarray, np.ndarra
     v_enu = np.array([v[1], v[0], -v[2]])
     if cov is None:
         return v_enu, None
-    return v_enu, NED_TO_ENU @ np.asarray(cov, dtype=float) @ NED_TO_ENU.T
+    c = np.asarray(cov, dtype=float)
+    return v_enu, c[np.ix_((1, 0, 2), (1, 0, 2))] * np.array([1.0, 1.0, -1.0])[:, None] \
+        * np.array([1.0, 1.0, -1.0])
 
 
 def world_velocity(linear, cov6x6, frame: str) -> tuple[np.ndarray, np.ndarray | None]:
     """ENU velocity and covariance from a world-frame twist (TwistWithCovarianceStamped):
     ``linear`` (3,) in ``frame``, ``cov6x6`` its 36-value twist covariance.
 
-    A NaN component stays NaN (not measured); an infinite one refuses the message, as do
-    three NaNs.
+    A NaN component, or one whose variance is -1 (not provided), is not measured (NaN); an
+    infinite one refuses the message, as does a message with no component measured.
     """
     v = np.array(linear, dtype=float).reshape(3)
+    cov, missing = covariance_block(cov6x6)
+    v[missing] = math.nan
     if np.isinf(v).any() or np.isnan(v).all():
         raise Refused("nonfinite", f"velocity is not finite ({', '.join(f'{x:g}' for x in v)})")
-    return to_enu(v, covariance_block(cov6x6), frame)
+    return to_enu(v, cov, frame)
 
 
 def horizontal_velocity(linear, frame: str) -> np.ndarray:
@@ -193,9 +212,10 @@ def odometry_velocity(linear_body, q_xyzw, twist_cov6x6, frame: str,
     rotated the same way (C P C^T)."""
     C = body_orientation(q_xyzw)
     v_b = np.array(linear_body, dtype=float).reshape(3)
-    if not np.isfinite(v_b).all():
-        raise Refused("nonfinite", f"velocity is not finite ({', '.join(f'{x:g}' for x in v_b)})")
-    cov_b = covariance_block(twist_cov6x6)
+    cov_b, missing = covariance_block(twist_cov6x6)
+    if not np.isfinite(v_b).all() or missing.any():
+        raise Refused("nonfinite", "body velocity not finite or not provided on every axis "
+                      f"({', '.join(f'{x:g}' for x in v_b)}): it cannot be rotated")
     cov_w = None if cov_b is None else C @ cov_b @ C.T
     return to_enu(C @ v_b, cov_w, frame)
 
@@ -205,7 +225,9 @@ def odometry_attitude(q_xyzw, pose_cov6x6, frame: str) -> tuple[np.ndarray, np.n
     orientation block of its pose covariance (rad^2 about the world axes, in ENU), or None."""
     _check_frame(frame)
     C = body_orientation(q_xyzw)
-    cov = covariance_block(pose_cov6x6, 3, "orientation")
+    cov, missing = covariance_block(pose_cov6x6, 3, "orientation")
+    if missing.any():
+        cov = None
     if frame == "ned":
         C = NED_TO_ENU @ C
         if cov is not None:

@@ -68,6 +68,14 @@ REASON_TEXT = {
     "undecodable": "the message bytes are not a valid sensor_msgs/Imu",
 }
 
+#: The in-motion estimator's refusals of measurements (MOTION_REJECT_REASONS).
+MEASUREMENT_REASON_TEXT = {
+    "measurement_too_late": "a velocity or attitude stamped more than max_measurement_lag "
+                            "before the newest IMU sample (GNSS and IMU clocks apart?)",
+    "measurement_invalid": "a measurement with an unusable covariance or value",
+    "time_jump": "IMU stamp gap above max_gap: the in-motion alignment starts over",
+}
+
 WARN_PERIOD = 5.0   # s (wall) between warnings for one rejection reason
 
 
@@ -325,9 +333,11 @@ def make_node_class():
             st = self._warn_state.setdefault(reason, [-math.inf, 0])
             st[1] += 1
             if now - st[0] >= WARN_PERIOD:
-                what = "sample(s)" if reason in REASON_TEXT else "input(s)"
-                self.get_logger().warning(
-                    f"rejected {st[1]} {what}: {reason} ({REASON_TEXT.get(reason, '?')})")
+                if self.motion and reason in MEASUREMENT_REASON_TEXT:
+                    what, text = "input(s)", MEASUREMENT_REASON_TEXT[reason]
+                else:
+                    what, text = "sample(s)", REASON_TEXT.get(reason, "?")
+                self.get_logger().warning(f"rejected {st[1]} {what}: {reason} ({text})")
                 st[0], st[1] = now, 0
 
         def _warn_refused(self, kind: str, reason: str, text: str):

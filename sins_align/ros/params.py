@@ -357,7 +357,10 @@ def velocity_reference(values: dict[str, Any]) -> VelocityReference:
 def motion_config_from_params(values: dict[str, Any]):
     """The in-motion estimator's ``MotionConfig`` from parameter values (missing ones take
     defaults): site (latitude, longitude, height), sensor specs, initial attitude, lever arm,
-    velocity noise, measurement lag, vehicle and the input checks. Raises ValueError."""
+    velocity noise, measurement lag, vehicle, attitude matching, ``max_gap`` and
+    ``max_angular_rate``. The other input checks (``specific_force_tolerance``,
+    ``units_check_window``, ``rate``), the quasi-static filter's and its aligned-flag
+    thresholds do not apply to it. Raises ValueError."""
     from sins_align.estimators.in_motion import MotionConfig
 
     m = checked_values(values)
@@ -369,8 +372,7 @@ def motion_config_from_params(values: dict[str, Any]):
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
         attitude_matching=bool(m["attitude_matching"]),
         initial_rpy_deg=_initial_rpy(m), max_gap=float(m["max_gap"]),
-        max_angular_rate=float(m["max_angular_rate"]),
-        specific_force_tolerance=float(m["specific_force_tolerance"]))
+        max_angular_rate=float(m["max_angular_rate"]))
 
 
 def estimator_config(values: dict[str, Any]):

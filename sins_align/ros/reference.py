@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections import Counter
 from typing import Callable
 
+from sins_align.core.rotation import dcm_from_quat
 from sins_align.io.velocity import Refused, from_navsat, velocity_from_message
 from sins_align.ros.params import VelocityReference
 
@@ -88,7 +89,12 @@ class ReferenceFeed:
         else:
             self.rejected["velocity"] += 1
         if attitude is not None:
-            if self.session.add_attitude(*attitude):
+            t, q, cov = attitude
+            if cov is not None:
+                # the estimator takes the attitude noise about the master's body axes
+                C = dcm_from_quat(q)
+                cov = C.T @ cov @ C
+            if self.session.add_attitude(t, q, cov):
                 self.attitude_used += 1
             else:
                 self.rejected["attitude"] += 1
