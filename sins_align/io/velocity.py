@@ -30,7 +30,8 @@ Conventions
   the body in ENU, is returned for attitude matching, with the orientation block of the pose
   covariance (rad^2 about the world axes, permuted for NED) when it is known.
 - ``sensor_msgs/NavSatFix``: latitude, longitude (deg) and altitude (m above the WGS-84
-  ellipsoid); refused when ``status.status`` < 0 (no fix) or a value is not finite.
+  ellipsoid); refused when ``status.status`` < 0 (no fix, or Jazzy's STATUS_UNKNOWN -2, the
+  field's default) or a value is not finite.
 
 A message that cannot be used raises :class:`Refused` with a short reason key (counted by the
 node and the replay) and a one-line text.
@@ -239,7 +240,8 @@ def fix_position(status: int, lat: float, lon: float, alt: float) -> tuple[float
     """(lat deg, lon deg, height m) of a NavSatFix, refused without a fix (status < 0) or
     with a non-finite value."""
     if int(status) < 0:
-        raise Refused("no_fix", f"NavSatFix status {int(status)}: no fix")
+        what = "unknown" if int(status) == -2 else "no fix"   # -2: STATUS_UNKNOWN (Jazzy)
+        raise Refused("no_fix", f"NavSatFix status {int(status)}: {what}")
     vals = (float(lat), float(lon), float(alt))
     if not all(math.isfinite(x) for x in vals):
         raise Refused("nonfinite", "NavSatFix latitude, longitude or altitude is not finite")

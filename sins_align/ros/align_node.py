@@ -204,6 +204,7 @@ def make_node_class():
                 self.sub_navsat = self.create_subscription(NavSatFix, r.navsat_topic,
                                                            self._on_navsat, qos)
             self._first_imu_wall: float | None = None
+            self._last_imu_wall = -math.inf
             self._velocity_wall: float | None = None
             self._silence_warned = -math.inf
 
@@ -308,8 +309,10 @@ def make_node_class():
         def _sample(self, t: float, w, f) -> bool:
             """One sample through the session; True when it is to be republished."""
             self._rx_count += 1
-            if self.feed is not None and self._first_imu_wall is None:
-                self._first_imu_wall = time.monotonic()
+            if self.feed is not None:
+                self._last_imu_wall = time.monotonic()
+                if self._first_imu_wall is None:
+                    self._first_imu_wall = self._last_imu_wall
             return self.session.feed(t, w, f)
 
         def _on_velocity(self, msg):
@@ -353,12 +356,14 @@ def make_node_class():
                 st[0], st[1] = now, 0
 
         def _velocity_silence(self) -> float | None:
-            """Wall seconds without a velocity message while IMU data comes (since the first
-            sample, or the last velocity message), when above VELOCITY_SILENCE; else None."""
-            if self._first_imu_wall is None:
+            """How long IMU data has come without a velocity message (wall s, since the first
+            sample or the last velocity message), when above VELOCITY_SILENCE and the IMU
+            data still comes; else None."""
+            if self._first_imu_wall is None or \
+                    time.monotonic() - self._last_imu_wall > VELOCITY_SILENCE:
                 return None
             last = max(self._first_imu_wall, self._velocity_wall or -math.inf)
-            silent = time.monotonic() - last
+            silent = self._last_imu_wall - last
             return silent if silent > VELOCITY_SILENCE else None
 
         def _on_clock_jump(self, jump):

@@ -35,6 +35,13 @@ STATE_TEXT = {
 }
 
 
+#: The in-motion estimator's states where they read otherwise.
+MOTION_STATE_TEXT = {
+    "waiting": "waiting for IMU data and a velocity measurement",
+    "aligning": "aligning in motion",
+}
+
+
 @dataclass(frozen=True)
 class ImuOutput:
     """Orientation fields added to the input sample."""
@@ -156,8 +163,8 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
     """
     st = str(est.status)
     level = {"waiting": WARN, "disturbed": WARN, "fault": ERROR}.get(st, OK)
-    msg = STATE_TEXT.get(st, st)
-    if not est.heading_observable:
+    msg = MOTION_STATE_TEXT.get(st, STATE_TEXT.get(st, st))
+    if st != "waiting" and not est.heading_observable:
         msg += " (heading not observable yet: it needs horizontal acceleration or turns)"
     std = est.std_enu_deg
     bg, ba = bias_estimates(est)
