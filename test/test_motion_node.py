@@ -303,7 +303,7 @@ def test_estimator_parameters_are_read_only_in_motion(quiet, probe):
     (["-p", "velocity_topic:=v", "-p", "velocity_frame:=nwu"],
      "velocity_frame must be one of enu, ned, got 'nwu'"),
     (["-p", "velocity_topic:=v", "-p", "lever_arm:=[1.0, 2.0]"],
-     "lever_arm must be 3 finite numbers in m"),
+     "lever_arm must be 3 finite numbers"),
     (["-p", "navsat_topic:=gnss/fix"], "navsat_topic needs a velocity_topic"),
     (["-p", "velocity_topic:=v", "-p", "velocity_type:=imu"], "velocity_type must be one of"),
 ], ids=["frame", "lever-arm", "navsat-alone", "type"])

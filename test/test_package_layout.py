@@ -154,19 +154,28 @@ def _site_packages(install_dir: Path) -> Path:
 
 
 def test_real_data_installed_with_the_package(install_dir):
-    """sins_align/data (the xz log, its README.md and LICENSE) is installed with the package,
-    and the installed package finds and reads it there."""
+    """sins_align/data (each data set with its README.md and LICENSE: the xz log, the
+    transfer-alignment .mat) is installed with the package, and the installed package finds
+    and reads both there."""
     src = _tree(REPO_ROOT / PKG / 'data')
-    assert 'psins-lasergyro/lasergyro.imu.xz' in src and 'psins-lasergyro/LICENSE' in src
+    for name in ('psins-lasergyro/lasergyro.imu.xz',
+                 'psins-transfer-fog-mems/transfer_align_fog_mems.mat'):
+        folder = name.split('/')[0]
+        assert {name, f'{folder}/LICENSE', f'{folder}/README.md'} <= set(src), sorted(src)
     assert _tree(_site_packages(install_dir) / PKG / 'data') == src
-    code = ('from sins_align.data import LASERGYRO; from sins_align.io.psins import read_psins; '
-            'print(LASERGYRO); print(read_psins(LASERGYRO).n)')
+    code = ('from sins_align.data import LASERGYRO, TRANSFER_FOG_MEMS; '
+            'from sins_align.io.psins import read_psins, read_psins_mat; '
+            'print(LASERGYRO); print(read_psins(LASERGYRO).n); '
+            'print(TRANSFER_FOG_MEMS); m = read_psins_mat(TRANSFER_FOG_MEMS); '
+            'print(m.n, m.n_master)')
     proc = subprocess.run([sys.executable, '-c', code], cwd=install_dir,
                           env=installed_env(install_dir), capture_output=True, text=True,
                           stdin=subprocess.DEVNULL, timeout=60)
     assert proc.returncode == 0, proc.stderr
-    path, n = proc.stdout.split()
+    path, n, mat_path, n_imu, n_master = proc.stdout.split()
     assert Path(path).resolve().is_relative_to(install_dir.resolve()) and n == '184718'
+    assert Path(mat_path).resolve().is_relative_to(install_dir.resolve())
+    assert (n_imu, n_master) == ('10001', '1000')
 
 
 def test_installed_replay_runs_on_the_installed_real_bag(install_dir, tmp_path):

@@ -24,7 +24,7 @@ from sins_align.core.rotation import attitude_error, dcm_from_rpy, so3_exp, so3_
 from sins_align.core.specs import DEG, grade_specs
 from sins_align.core.strapdown import (WGS84_A, WGS84_E2, NavState, mechanize, mechanize_block,
                                        normal_gravity, radii, transport_rate)
-from sins_align.sim.trajectory import (PRESETS, SEED003_SPECS, Segment, Trajectory,
+from sins_align.sim.trajectory import (SEED003_SPECS, Segment, Trajectory,
                                        simulate_trajectory, trajectory_preset)
 
 #: name: (attitude rad, velocity m/s, horizontal position m, height m) at 100 Hz.
@@ -41,7 +41,7 @@ def _errors(r, track):
     return att, vel, hor, np.abs(track.h - r.h).max()
 
 
-@pytest.fixture(scope="module", params=sorted(PRESETS))
+@pytest.fixture(scope="module", params=sorted(TOL))
 def clean_run(request):
     return request.param, simulate_trajectory(trajectory_preset(request.param), 100.0)
 

@@ -23,9 +23,18 @@ PSINS Euler convention (``a2mat`` / ``m2att``)
 Yaw is the azimuth of the body *Y* (forward) axis, **counter-clockwise** from North
 (true heading of the forward axis = ``-yaw``). This is not REP-103 (``Rz Ry Rx``, yaw of the
 body x axis from East); convert through the DCM.
+
+PSINS transfer-alignment ``.mat`` (:func:`read_psins_mat`)
+----------------------------------------------------------
+A MATLAB v5 file (``sins_align/data/psins-transfer-fog-mems/README.md``) with ``mimu``
+(N x 7: dtheta xyz [rad], dv xyz [m/s], t [s] of a slave MEMS IMU), ``fogavp`` (M x 10: pitch,
+roll, yaw [rad], vE vN vU [m/s], lat lon [rad], h [m], t [s] of a master FOG INS), and the
+reference values ``eb0`` (gyro bias, rad/s), ``db0`` (accelerometer bias, m/s^2) and ``mu0``
+(mounting misalignment of the slave relative to the master, rad). Both IMUs have RFU axes.
 """
 from __future__ import annotations
 
+import io
 import lzma
 import os
 from dataclasses import dataclass
@@ -277,3 +286,203 @@ def dcm_to_psins_att(C: np.ndarray) -> np.ndarray:
     yaw = np.where(lock, np.arctan2(C[..., 1, 0], C[..., 0, 0]),
                    np.arctan2(-C[..., 0, 1], C[..., 1, 1]))
     return np.stack([pitch, roll, yaw], axis=-1)
+
+
+# ----------------------------------------------------------------------------- .mat
+#: the variables a PSINS transfer-alignment .mat must hold, with their column counts
+#: (None: a 3-vector)
+MAT_VARIABLES = {"mimu": 7, "fogavp": 10, "eb0": None, "db0": None, "mu0": None}
+
+#: largest relative deviation of one ``mimu`` interval from the mean interval
+MAT_INTERVAL_TOLERANCE = 0.01
+
+
+@dataclass
+class PsinsMat:
+    """A PSINS transfer-alignment ``.mat``: slave MEMS IMU, master INS records, references.
+
+    Every attitude is of RFU body axes (X-Right, Y-Forward, Z-Up) in ENU; quaternions are
+    ``[x, y, z, w]`` (ROS order, w >= 0) of the same rotation as the DCM ``C_b^n``.
+
+    Attributes
+    ----------
+    t : ndarray (N,), s — the ``mimu`` time column (end of each increment's interval).
+    gyro : ndarray (N, 3), rad/s — mean angular rate over each interval (dtheta / ts), RFU.
+    accel : ndarray (N, 3), m/s^2 — mean specific force (dv / ts), RFU.
+    ts : float, s — the sampling interval: the mean step of the time column (every step is
+        within 1 % of it).
+    master_t : ndarray (M,), s — times of the master records (same time base as ``t``).
+    master_att : ndarray (M, 3), rad — the master's [pitch, roll, yaw] as in the file
+        (PSINS convention, :func:`psins_att_to_dcm`).
+    master_dcm : ndarray (M, 3, 3) — the master's C_b^n (its RFU body in ENU).
+    master_quat : ndarray (M, 4) — the same as quaternions [x, y, z, w].
+    master_vel : ndarray (M, 3), m/s — the master's velocity [vE, vN, vU].
+    master_lat, master_lon : ndarray (M,), rad — geodetic latitude, longitude.
+    master_height : ndarray (M,), m — height.
+    eb0 : ndarray (3,), rad/s — reference gyro bias of the slave MEMS IMU (body axes).
+    db0 : ndarray (3,), m/s^2 — reference accelerometer bias of the slave (body axes).
+    mu0 : ndarray (3,), rad — mounting misalignment of the slave relative to the master
+        (a rotation vector in the master's body axes, :func:`slave_attitude`).
+    slave_dcm : ndarray (M, 3, 3) — the slave's true C_b^n at ``master_t``
+        (:func:`slave_attitude` of ``master_dcm`` and ``mu0``).
+    slave_quat : ndarray (M, 4) — the same as quaternions [x, y, z, w].
+    body_axes : str — 'RFU' for both IMUs.
+    """
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    ts: float
+    master_t: np.ndarray
+    master_att: np.ndarray
+    master_dcm: np.ndarray
+    master_quat: np.ndarray
+    master_vel: np.ndarray
+    master_lat: np.ndarray
+    master_lon: np.ndarray
+    master_height: np.ndarray
+    eb0: np.ndarray
+    db0: np.ndarray
+    mu0: np.ndarray
+    slave_dcm: np.ndarray
+    slave_quat: np.ndarray
+    body_axes: str = "RFU"
+
+    @property
+    def n(self) -> int:
+        """Number of IMU samples."""
+        return int(self.t.shape[0])
+
+    @property
+    def n_master(self) -> int:
+        """Number of master records."""
+        return int(self.master_t.shape[0])
+
+
+def slave_attitude(master_dcm: np.ndarray, mu0: np.ndarray) -> np.ndarray:
+    """The slave's C_b^n from the master's and the mounting misalignment ``mu0``.
+
+    ``C_s^n = C_m^n @ exp((mu0 x))``: ``mu0`` is the small rotation from the master's body
+    axes to the slave's, in the master's axes. Equivalently, PSINS's ``qmul(qnb_slave,
+    rv2q(-mu0))`` is the master's attitude. The sign was checked on the shipped data (see
+    ``sins_align/data/psins-transfer-fog-mems/README.md``): the yaw part of the mounting fitted
+    to the MEMS gyro and accelerometer against the master agrees with ``+mu0``, not ``-mu0``.
+
+    Parameters
+    ----------
+    master_dcm : ndarray (..., 3, 3) — C_m^n.
+    mu0 : ndarray (3,), rad.
+
+    Returns
+    -------
+    ndarray (..., 3, 3) — C_s^n.
+    """
+    from sins_align.core.rotation import so3_exp
+
+    return np.asarray(master_dcm, dtype=float) @ so3_exp(np.asarray(mu0, dtype=float))
+
+
+def _mat_array(name: str, mat: dict, key: str, columns: int | None) -> np.ndarray:
+    """One variable of the .mat, checked: real, finite, of the expected shape."""
+    if key not in mat:
+        have = sorted(k for k in mat if not k.startswith("__"))
+        raise ValueError(f"{name}: variable {key!r} missing (the file has: "
+                         f"{', '.join(have) or 'no variables'})")
+    a = mat[key]
+    if not isinstance(a, np.ndarray) or a.dtype.kind not in "iuf":
+        raise ValueError(f"{name}: variable {key!r} is not a real numeric array")
+    a = a.astype(float)
+    if columns is None:
+        if a.size != 3:
+            raise ValueError(f"{name}: variable {key!r} must have 3 elements, got shape "
+                             f"{a.shape}")
+        a = a.reshape(3)
+    elif a.ndim != 2 or a.shape[1] != columns or a.shape[0] < 1:
+        raise ValueError(f"{name}: variable {key!r} must be an (n, {columns}) array, got shape "
+                         f"{a.shape}")
+    if not np.isfinite(a).all():
+        bad = np.argwhere(~np.isfinite(a))[0]
+        where = f" (row {bad[0] + 1})" if a.ndim == 2 else ""
+        raise ValueError(f"{name}: variable {key!r} has a non-finite value{where}")
+    return a
+
+
+def _increasing(name: str, key: str, t: np.ndarray):
+    steps = np.diff(t)
+    if steps.size and not (steps > 0.0).all():
+        k = int(np.argmin(steps > 0.0))
+        raise ValueError(f"{name}: {key} time does not increase at row {k + 2} "
+                         f"({t[k]!r} s -> {t[k + 1]!r} s)")
+
+
+def load_mat(path: str | os.PathLike) -> dict:
+    """The variables of a MATLAB v5 ``.mat`` file (``scipy.io.loadmat``).
+
+    Raises
+    ------
+    OSError — the file cannot be read. ValueError — with the file name, for anything that is
+    not a readable v5/v6/v7 .mat (truncated, corrupted, not a .mat, or a v7.3 HDF5 file).
+    """
+    import scipy.io
+
+    name = os.fspath(path)
+    with open(name, "rb") as fh:
+        data = fh.read()
+    try:
+        return scipy.io.loadmat(io.BytesIO(data))
+    except NotImplementedError:
+        raise ValueError(f"{name}: a MATLAB v7.3 (HDF5) file, which is not read here; save it "
+                         f"with save(..., '-v7')") from None
+    except Exception as e:   # noqa: BLE001 - scipy raises many kinds on corrupt input
+        text = " ".join(str(e).split()) or type(e).__name__
+        raise ValueError(f"{name}: not a readable MATLAB .mat file ({text})") from None
+
+
+def read_psins_mat(path: str | os.PathLike) -> PsinsMat:
+    """Read a PSINS transfer-alignment ``.mat`` (e.g. :data:`sins_align.data.TRANSFER_FOG_MEMS`).
+
+    Increments become mean rates and specific forces (divided by the mean interval); the
+    master's PSINS Euler angles become C_b^n and quaternions (:func:`psins_att_to_dcm`); the
+    slave's true attitude at the master times is :func:`slave_attitude`.
+
+    Raises
+    ------
+    OSError — the file cannot be read.
+    ValueError — one line with the file name: not a readable .mat (truncated, corrupted), a
+        variable missing or of the wrong shape or type, a non-finite value, a time column
+        that does not increase, ``mimu`` intervals that differ from their mean by more
+        than 1 %, fewer than 2 IMU samples, or a latitude beyond +-90 deg.
+    """
+    from sins_align.core.rotation import quat_from_dcm
+
+    name = os.fspath(path)
+    mat = load_mat(name)
+    mimu, fog, eb0, db0, mu0 = (_mat_array(name, mat, key, cols)
+                                for key, cols in MAT_VARIABLES.items())
+    if mimu.shape[0] < 2:
+        raise ValueError(f"{name}: mimu has {mimu.shape[0]} row; at least 2 are needed to "
+                         f"know the sampling interval")
+    t = mimu[:, 6].copy()
+    _increasing(name, "mimu", t)
+    steps = np.diff(t)
+    ts = float((t[-1] - t[0]) / (t.size - 1))
+    dev = np.abs(steps - ts)
+    if dev.max() > MAT_INTERVAL_TOLERANCE * ts:
+        k = int(np.argmax(dev))
+        raise ValueError(f"{name}: mimu is not uniformly sampled: step {steps[k]!r} s at row "
+                         f"{k + 2}, mean {ts!r} s (increments need one interval)")
+    master_t = fog[:, 9].copy()
+    _increasing(name, "fogavp", master_t)
+    lat = fog[:, 6]
+    if np.abs(lat).max() > np.pi / 2:
+        raise ValueError(f"{name}: fogavp latitude {np.rad2deg(np.abs(lat).max()):.3f} deg is "
+                         f"beyond 90 deg (column 7 must be rad)")
+    att = fog[:, 0:3].copy()
+    dcm = psins_att_to_dcm(att)
+    slave = slave_attitude(dcm, mu0)
+    return PsinsMat(t=t, gyro=mimu[:, 0:3] / ts, accel=mimu[:, 3:6] / ts, ts=ts,
+                    master_t=master_t, master_att=att, master_dcm=dcm,
+                    master_quat=quat_from_dcm(dcm), master_vel=fog[:, 3:6].copy(),
+                    master_lat=lat.copy(), master_lon=fog[:, 7].copy(),
+                    master_height=fog[:, 8].copy(), eb0=eb0, db0=db0, mu0=mu0,
+                    slave_dcm=slave, slave_quat=quat_from_dcm(slave), body_axes="RFU")

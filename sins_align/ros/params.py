@@ -21,6 +21,7 @@ from sins_align.io.velocity import VELOCITY_FRAMES, VELOCITY_TYPES
 from sins_align.core.models import MODELS
 from sins_align.core.specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
 from sins_align.sim.simulator import SWAY_PRESETS
+from sins_align.sim.trajectory import PRESETS as TRAJECTORY_PRESETS
 
 #: The node's name: its executable's (``ros2 param list /align_node``). The shipped
 #: config/align.yaml is keyed ``/**`` so that it applies to a renamed node too.
@@ -38,8 +39,8 @@ class ParamSpec:
     int or a list of floats), text, range or choices, read-only or [runtime], scope.
 
     A float parameter whose default is NaN is required (the node refuses to start without
-    it). A list is 3 finite numbers (``list_of`` names them in the error), or empty when
-    ``allow_empty``; a string is non-empty unless ``allow_empty``. ``rule`` is a further
+    it). A list is 3 finite numbers, or empty when ``allow_empty``; a string is one of the
+    ``choices`` (when given), or empty when ``allow_empty``. ``rule`` is a further
     check beyond type and range (a one-line reason, or None).
     """
 
@@ -53,7 +54,6 @@ class ParamSpec:
     scope: str = "align"
     allow_empty: bool = False
     rule: Callable[[Any], str | None] | None = None
-    list_of: str = "angles in deg"
 
     @property
     def required(self) -> bool:
@@ -133,8 +133,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("velocity_frame", "enu", "Axis convention of the velocity message's world "
               "frame: enu or ned (never guessed from frame_id).", choices=VELOCITY_FRAMES),
     ParamSpec("lever_arm", [0.0, 0.0, 0.0], "Lever arm from the IMU to the GNSS antenna (or "
-              "master INS), m, in the IMU frame.", list_of="numbers in m",
-              rule=_check_lever_arm),
+              "master INS), m, in the IMU frame.", rule=_check_lever_arm),
     ParamSpec("velocity_noise", 0.1, "Velocity reference noise 1-sigma, m/s, for messages "
               "without a covariance.", 1e-4, 100.0),
     ParamSpec("max_measurement_lag", 0.5, "Velocity messages may arrive this much after the "
@@ -194,7 +193,21 @@ SIM_PARAMS: tuple[ParamSpec, ...] = _scoped(
               "publishes the samples that are due.", 1.0, 1000.0),
     ParamSpec("publish_truth", True, "Publish imu_sim/truth."),
     ParamSpec("wait_for_subscribers", False, "Start the data clock only once imu/data_raw (and "
-              "imu_sim/truth, when published) have a subscriber."),
+              "imu_sim/truth, when published, and gnss/fix_velocity with a trajectory) have a "
+              "subscriber."),
+    ParamSpec("trajectory", "", "Moving-vehicle preset, one of "
+              f"{', '.join(sorted(TRAJECTORY_PRESETS))} (empty = the static base): the vehicle "
+              "starts at latitude and height and moves; duration 0 = the preset's own; rpy and "
+              "sway must stay at their defaults. Publishes gnss/fix_velocity and gnss/fix.",
+              choices=tuple(sorted(TRAJECTORY_PRESETS)), allow_empty=True),
+    ParamSpec("gnss_rate", 10.0, "GNSS rate with a trajectory, Hz (rate / gnss_rate must be a "
+              "whole number).", 1.0, 20.0),
+    ParamSpec("gnss_noise", 0.05, "GNSS velocity noise 1-sigma per ENU axis, m/s.", 0.0, 100.0),
+    ParamSpec("gnss_position_noise", 0.0, "GNSS position noise 1-sigma per ENU axis, m.",
+              0.0, 1000.0),
+    ParamSpec("gnss_latency", 0.0, "GNSS delivery delay, s of data time: a measurement is "
+              "published that late, stamped with its measurement time.", 0.0, 10.0),
+    ParamSpec("lever_arm", [0.0, 0.0, 0.0], "IMU to GNSS antenna, m, in IMU axes."),
 )
 
 #: The whole schema: every parameter of every scope.
@@ -232,10 +245,11 @@ def check_param(name: str, value: Any, scope: str = "align") -> str | None:
     if isinstance(d, str):
         if not isinstance(value, str):
             return f"{name} must be a string"
+        if not value:
+            return None if spec.allow_empty else f"{name} must be a non-empty string"
         if spec.choices and value not in spec.choices:
-            return f"{name} must be one of {', '.join(spec.choices)}, got '{value}'"
-        if not value and not spec.allow_empty:
-            return f"{name} must be a non-empty string"
+            empty = " (or empty)" if spec.allow_empty else ""
+            return f"{name} must be one of {', '.join(spec.choices)}{empty}, got '{value}'"
         return None
     if isinstance(d, list):
         try:
@@ -245,7 +259,8 @@ def check_param(name: str, value: Any, scope: str = "align") -> str | None:
         if len(vals) not in ((0, 3) if spec.allow_empty else (3,)) \
                 or not all(math.isfinite(x) for x in vals):
             empty = " (or empty)" if spec.allow_empty else ""
-            return f"{name} must be 3 finite {spec.list_of}{empty}, got {list(value)}"
+            what = "angles in deg" if name.endswith("rpy") else "numbers"
+            return f"{name} must be 3 finite {what}{empty}, got {list(value)}"
         return spec.rule(vals) if spec.rule else None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return f"{name} must be a number"

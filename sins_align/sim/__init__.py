@@ -2,7 +2,8 @@
 
 - :mod:`~sins_align.sim.simulator`: Earth rate, gravity, sway (tones, presets, events such as
   a shove or a door slam), sensor errors, sample loss and stamp faults.
-- :mod:`~sins_align.sim.trajectory`: moving vehicle (segments, presets), GNSS velocity.
+- :mod:`~sins_align.sim.trajectory`: moving vehicle (segments, waves, presets), sensor errors
+  with scale factors and rotor vibration, GNSS velocity and position (latency, dropouts).
 - :mod:`~sins_align.sim.honesty`: the disturbance matrix (cases, invariants, one table).
 """
 from sins_align.sim.simulator import (SWAY_PRESETS, Event, ImuSimulator, RunsResult, SimResult,

@@ -34,7 +34,7 @@ from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rp
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion.config import MotionConfig
-from sins_align.estimators.in_motion.filter import (IBA, IBG, ILEV, INU, IPHI, InvariantEKF,
+from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel)
 from sins_align.estimators.quasi_static.aligner import AlignmentEvent
 
@@ -84,7 +84,7 @@ class MotionAligner:
         tau = s.bias_correlation_time
         walk_g = s.gyro_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.gyro_bias
         walk_a = s.accel_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.accel_bias
-        self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a)
+        self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a, config.gyro_scale_std)
         self.rejected: Counter = Counter()
         self.events: Counter = Counter()
         self._listeners: list[Callable[[AlignmentEvent], None]] = []
@@ -357,7 +357,10 @@ class MotionAligner:
         v_var = np.diag(R).copy()
         v_var[~np.isfinite(v_var)] = 4.0
         v_var = v_var + (age * (a_h + 0.5)) ** 2 + (wmax * lev) ** 2 + 0.05 ** 2
-        n = 15 if c.lever_arm_std > 0 else 12
+        extra = tuple(x for x, on in (("lever", c.lever_arm_std > 0),
+                                      ("mount", c.attitude_matching and c.mounting_std_deg > 0))
+                      if on)
+        n = 12 + 3 * len(extra)
         P = np.zeros((n, n))
         # attitude: ENU covariance diag(level, level, heading) to body axes
         Pn = np.diag([level_std ** 2, level_std ** 2, head_std ** 2])
@@ -368,13 +371,18 @@ class MotionAligner:
             P[i][INU, INU] = Cs[i].T @ Pv @ Cs[i]
         P[:, IBG, IBG] = np.eye(3) * c.specs.gyro_bias ** 2
         P[:, IBA, IBA] = np.eye(3) * c.specs.accel_bias ** 2
-        if n == 15:
-            P[:, ILEV, ILEV] = np.eye(3) * c.lever_arm_std ** 2
+        i = 12
+        for x in extra:
+            std = c.lever_arm_std if x == "lever" else c.mounting_std_deg * DEG
+            P[:, i:i + 3, i:i + 3] = np.eye(3) * std ** 2
+            i += 3
         lat, lon, h = self.position
-        self.ekf = InvariantEKF(NavState(C, z, lat, lon, h), P, self.noise, c.lever_arm, C=Cs)
+        self.ekf = InvariantEKF(NavState(C, z, lat, lon, h), P, self.noise, c.lever_arm, C=Cs,
+                                extra=extra)
         self.ekf.w_last[:] = ws[-1]
         self.ekf.f_last[:] = fs[-1]
         self._logw = np.full(K, -math.log(K))
+        self._prior_head_std = head_std
         self._best = 0
         if c.vehicle == "ground":
             self._next_nhc = t0 + c.nhc_period
@@ -573,9 +581,10 @@ class MotionAligner:
             best = int(np.argmax(lw))
             # hypotheses that converged onto the best one merge into it: within 3 sigma of
             # its own attitude uncertainty on every axis
+            # (once the best one has learnt something: its heading std a third of the prior)
             d = attitude_error(self.ekf.C, self.ekf.C[best][None])
             sd = np.sqrt(np.diag(self.ekf.covariance_enu[best]))
-            same = np.all(np.abs(d) <= 3.0 * sd, axis=1)
+            same = np.all(np.abs(d) <= 3.0 * sd, axis=1) & (sd[2] <= self._prior_head_std / 3.0)
             same[best] = False
             if same.any():
                 lw[best] = np.logaddexp(lw[best], np.logaddexp.reduce(lw[same]))
@@ -661,6 +670,7 @@ class MotionAligner:
             "bias_gyro_dph": (self.bias_gyro / DPH).tolist() if ok else None,
             "bias_accel_mg": (self.bias_accel / 9.80665e-3).tolist() if ok else None,
             "lever_arm_m": self.lever_arm.tolist(),
+            "mounting_deg": (self.ekf.mount[self._best] / DEG).tolist() if ok else None,
             "nis": self.nis,
         }
 

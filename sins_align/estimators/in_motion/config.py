@@ -22,6 +22,9 @@ class MotionConfig:
         :meth:`MotionAligner.add_position` replaces it).
     specs : SensorSpecs or a grade name ('navigation', 'tactical', 'consumer'): the bias
         priors and noise densities of the filter.
+    gyro_scale_std : 1-sigma gyro scale-factor error (fraction, e.g. 0.003 for a MEMS gyro
+        of 0.3 %); not estimated, its attitude error is added to the covariance as the IMU
+        turns (see :class:`~sins_align.estimators.in_motion.filter.NoiseModel`).
     lever_arm : (3,) m, IMU frame — from the IMU to the antenna of the velocity reference.
     lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (15 states).
     velocity_noise : m/s — 1-sigma of a velocity measurement that comes without covariance.
@@ -44,6 +47,8 @@ class MotionConfig:
     init_time : s — accelerometer averaging for the initial level.
     attitude_matching : use the master attitudes given to :meth:`MotionAligner.add_attitude`.
     attitude_noise_deg : 1-sigma per axis of a master attitude that comes without covariance.
+    mounting_std_deg : 1-sigma per axis of the mounting misalignment between the master's
+        axes and ours, estimated with ``attitude_matching`` (0: taken as exactly zero).
     nis_inflate : a measurement whose normalised innovation per degree of freedom exceeds this
         has its noise inflated until it equals it (large early transients, skids, outliers).
     max_gap : s — IMU stamp gaps above this restart the alignment.
@@ -59,6 +64,7 @@ class MotionConfig:
     longitude_deg: float = 0.0
     height_m: float = 0.0
     specs: SensorSpecs | str = "consumer"
+    gyro_scale_std: float = 0.0
     lever_arm: tuple = (0.0, 0.0, 0.0)
     lever_arm_std: float = 0.0
     velocity_noise: float = 0.1
@@ -73,6 +79,7 @@ class MotionConfig:
     init_time: float = 0.5
     attitude_matching: bool = False
     attitude_noise_deg: float = 0.1
+    mounting_std_deg: float = 1.0
     nis_inflate: float = 5.0
     max_gap: float = 1.0
     max_angular_rate: float = 10.0
@@ -111,9 +118,12 @@ class MotionConfig:
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
-        for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m"):
+        for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m",
+                     "mounting_std_deg", "gyro_scale_std"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x)):
                 raise ValueError(f"{name} must be finite, got {x!r}")
-        if self.lever_arm_std < 0 or self.max_measurement_lag < 0:
-            raise ValueError("lever_arm_std and max_measurement_lag must be >= 0")
+        if min(self.lever_arm_std, self.max_measurement_lag, self.mounting_std_deg,
+               self.gyro_scale_std) < 0:
+            raise ValueError("lever_arm_std, max_measurement_lag, mounting_std_deg and "
+                             "gyro_scale_std must be >= 0")

@@ -91,13 +91,16 @@ from sins_align.core.rotation import (dcm_from_quat, quat_from_rotvec, quat_mult
 from sins_align.core.strapdown import NavState, mechanize
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "IPHI", "INU",
-           "IBG", "IBA", "ILEV"]
+           "IBG", "IBA", "EXTRA_STATES"]
 
 #: longest run of samples propagated in one closed-form step, s
 MAX_RUN = 1.0
 
-IPHI, INU, IBG, IBA, ILEV = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12),
-                             slice(12, 15))  # 12 states, 15 with the lever arm
+IPHI, INU, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
+#: optional 3-state blocks after the 12 core states, in this order when present: the lever
+#: arm (body, m) and the mounting misalignment of a master INS (``C_slave = C_master exp(mu
+#: x)``, rad, master axes)
+EXTRA_STATES = ("lever", "mount")
 _I3 = np.eye(3)
 
 
@@ -107,12 +110,16 @@ class NoiseModel:
 
     gyro_arw : rad/sqrt(s); accel_vrw : m/s/sqrt(s); gyro_bias_walk : rad/s/sqrt(s);
     accel_bias_walk : m/s^2/sqrt(s).
+    gyro_scale : 1-sigma gyro scale-factor error (fraction), not estimated: each run adds
+        ``(gyro_scale * |rotation about each body axis|)^2`` to the attitude variance, so a
+        vehicle that turns or rolls hard gets the uncertainty its gyro's scale leaves.
     """
 
     gyro_arw: float
     accel_vrw: float
     gyro_bias_walk: float
     accel_bias_walk: float
+    gyro_scale: float = 0.0
 
 
 def _w_in(v, lat, h):
@@ -156,9 +163,12 @@ class InvariantEKF:
     P0 : (n, n) or (K, n, n) — initial error covariance(s).
     noise : NoiseModel.
     lever_arm : (3,) m, body — initial lever arm.
+    extra : which of :data:`EXTRA_STATES` are estimated (their blocks follow the core 12 in
+        that order; P0 must have 12 + 3 per block rows).
     """
 
-    def __init__(self, state: NavState, P0, noise: NoiseModel, lever_arm=(0, 0, 0), C=None):
+    def __init__(self, state: NavState, P0, noise: NoiseModel, lever_arm=(0, 0, 0), C=None,
+                 extra=()):
         C = state.C[None] if C is None else np.asarray(C, dtype=float).reshape(-1, 3, 3)
         K = len(C)
         self.C = C.copy()
@@ -169,16 +179,29 @@ class InvariantEKF:
         P0 = np.asarray(P0, dtype=float)
         self.P = np.broadcast_to(P0, (K,) + P0.shape[-2:]).copy()
         self.n = self.P.shape[-1]
-        if self.P.shape[-2:] not in ((12, 12), (15, 15)):
-            raise ValueError("P0 must be 12x12 or 15x15 (with the lever arm)")
+        unknown = set(extra) - set(EXTRA_STATES)
+        if unknown:
+            raise ValueError(f"unknown extra states {sorted(unknown)}")
+        blocks = [x for x in EXTRA_STATES if x in extra]
+        if self.P.shape[-2:] != (12 + 3 * len(blocks),) * 2:
+            raise ValueError(f"P0 must be {12 + 3 * len(blocks)} square for extra={blocks}")
+        self.i_lev = self.i_mnt = None
+        for i, x in enumerate(blocks):
+            sl = slice(12 + 3 * i, 15 + 3 * i)
+            if x == "lever":
+                self.i_lev = sl
+            else:
+                self.i_mnt = sl
         self.noise = noise
         self.bg = np.zeros((K, 3))
         self.ba = np.zeros((K, 3))
         self.lever = np.tile(np.asarray(lever_arm, dtype=float).reshape(3), (K, 1))
+        self.mount = np.zeros((K, 3))
         self.w_last = np.zeros((K, 3))
         self.f_last = np.zeros((K, 3))
 
-    _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "w_last", "f_last")
+    _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "w_last",
+               "f_last")
 
     @property
     def K(self) -> int:
@@ -207,23 +230,27 @@ class InvariantEKF:
 
     # ------------------------------------------------------------ propagation
     def propagate(self, dt, gyro, accel) -> None:
-        """Propagate over samples (dt (m,), gyro and accel (m, 3)) in runs of at most MAX_RUN s."""
+        """Propagate over samples in runs of at most MAX_RUN s: dt (m,); gyro and accel
+        (m, 3), the same samples for every filter, or (K, m, 3), each filter its own (a
+        Monte Carlo of K runs)."""
         dt = np.asarray(dt, dtype=float).reshape(-1)
-        gyro = np.asarray(gyro, dtype=float).reshape(-1, 3)
-        accel = np.asarray(accel, dtype=float).reshape(-1, 3)
+        gyro = np.asarray(gyro, dtype=float)
+        accel = np.asarray(accel, dtype=float)
         m = len(dt)
         if m == 0:
             return
+        if gyro.shape[-2:] != (m, 3) or accel.shape != gyro.shape or gyro.ndim > 3:
+            raise ValueError(f"gyro and accel must be ({m}, 3) or (K, {m}, 3)")
         tt = np.cumsum(dt)
         k = 0
         while k < m:
             e = k + max(1, int(np.searchsorted(tt[k:], tt[k] - dt[k] + MAX_RUN, "right")))
-            self._run(dt[k:e], gyro[k:e], accel[k:e])
+            self._run(dt[k:e], gyro[..., k:e, :], accel[..., k:e, :])
             k = e
 
     def _run(self, dt, gyro, accel):
-        w = gyro[None] - self.bg[:, None]            # (K, m, 3)
-        f = accel[None] - self.ba[:, None]
+        w = gyro - self.bg[:, None]                  # (K, m, 3)
+        f = accel - self.ba[:, None]
         rv = w * dt[None, :, None]
         q = quat_from_rotvec(np.concatenate([rv, 0.5 * rv], 0))
         K = len(w)
@@ -258,6 +285,9 @@ class InvariantEKF:
         B = d2[:, None, None] * _I3 - np.einsum("m,kmi,kmj->kij", dt, D, D)
         Q = np.zeros((K, n, n))
         Q[:, IPHI, IPHI] = qg * Ttot * _I3
+        if nz.gyro_scale > 0.0:
+            turn = nz.gyro_scale * np.abs(rv).sum(axis=1)           # (K, 3), body (start)
+            Q[:, IPHI, IPHI] += GmT @ (turn[:, :, None] ** 2 * _I3) @ Gm
         c = qg * (GmT @ skew(A) @ Gm)
         Q[:, IPHI, INU] = c
         Q[:, INU, IPHI] = _mT(c)
@@ -333,8 +363,10 @@ class InvariantEKF:
         self.v = self.v - np.einsum("kij,kj->ki", self.C, dx[:, INU])
         self.bg = self.bg - dx[:, IBG]
         self.ba = self.ba - dx[:, IBA]
-        if self.n == 15:
-            self.lever = self.lever - dx[:, ILEV]
+        if self.i_lev is not None:
+            self.lever = self.lever - dx[:, self.i_lev]
+        if self.i_mnt is not None:
+            self.mount = self.mount - dx[:, self.i_mnt]
 
     def velocity_model(self):
         """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state."""
@@ -349,18 +381,21 @@ class InvariantEKF:
         Hb[:, :, IPHI] = skew(u) - skew(lever) @ skew(a)
         Hb[:, :, INU] = -_I3
         Hb[:, :, IBG] = -skew(lever)
-        if self.n == 15:
-            Hb[:, :, ILEV] = -skew(w_nb)
+        if self.i_lev is not None:
+            Hb[:, :, self.i_lev] = -skew(w_nb)
         return z_hat, C @ Hb
 
     def update_velocity(self, z, R, nis_limit=None):
-        """Velocity of the antenna, ENU (3,); NaN components are not measured; R (3, 3).
+        """Velocity of the antenna, ENU: (3,) for every filter, NaN components not measured,
+        R (3, 3); or (K, 3) and R (K, 3, 3), each filter its own (all finite).
         Returns (NIS per dof, log-likelihood), each (K,)."""
         z = np.asarray(z, dtype=float)
         z_hat, H = self.velocity_model()
+        R = np.asarray(R, dtype=float)
+        if z.ndim == 2:
+            return self._apply(z - z_hat, H, R, nis_limit)
         ok = np.isfinite(z)
-        R = np.asarray(R, dtype=float)[np.ix_(ok, ok)]
-        return self._apply((z - z_hat)[:, ok], H[:, ok], R, nis_limit)
+        return self._apply((z - z_hat)[:, ok], H[:, ok], R[np.ix_(ok, ok)], nis_limit)
 
     def update_lateral(self, axis: int, sigma: float, nis_limit=None):
         """Non-holonomic constraint: the body velocity along ``axis`` is zero (+- sigma)."""
@@ -371,11 +406,16 @@ class InvariantEKF:
         return self._apply(-vb[:, axis:axis + 1], H, np.array([[sigma * sigma]]), nis_limit)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
-        """Attitude of a reference (body axes equal to ours): ``C_ref = C exp(n x)`` with n of
-        covariance R (body, rad^2). The residual ``log(C_hat^T C_ref)`` is ``-phi + n``."""
-        y = so3_log(_mT(self.C) @ np.asarray(C_ref, dtype=float))
+        """Attitude of a master INS: ``C_ref = C exp(-mu x) exp(n x)``, with ``mu`` the
+        mounting misalignment (the estimated state, or zero) and n of covariance R (rad^2).
+        The residual ``log((C_hat exp(-mu_hat x))^T C_ref)`` is ``-phi + d_mu + n`` to first
+        order (``d_mu = mu_hat - mu``)."""
+        Cm_hat = self.C @ so3_exp(-self.mount)
+        y = so3_log(_mT(Cm_hat) @ np.asarray(C_ref, dtype=float))
         H = np.zeros((self.K, 3, self.n))
         H[:, :, IPHI] = -_I3
+        if self.i_mnt is not None:
+            H[:, :, self.i_mnt] = _I3
         return self._apply(y, H, np.asarray(R, dtype=float), nis_limit)
 
 
