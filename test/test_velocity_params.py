@@ -31,7 +31,7 @@ BASE = {"latitude": 34.0}
     ("velocity_type", "imu", "velocity_type must be one of twist_with_covariance, twist, "
                              "odometry, got 'imu'"),
     ("velocity_frame", "nwu", "velocity_frame must be one of enu, ned, got 'nwu'"),
-    ("velocity_frame", "", "velocity_frame must be one of enu, ned"),
+    ("velocity_frame", "", "velocity_frame must be a non-empty string"),
     ("lever_arm", [0.1, 0.2], "lever_arm must be 3 finite numbers, got [0.1, 0.2]"),
     ("lever_arm", [0.1, math.nan, 0.0], "lever_arm must be 3 finite numbers"),
     ("lever_arm", [], "lever_arm must be 3 finite numbers, got []"),
