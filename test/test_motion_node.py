@@ -19,14 +19,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import TwistWithCovarianceStamped
+from geometry_msgs.msg import QuaternionStamped, TwistWithCovarianceStamped
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Bool
 
 from ros_helpers import LATCHED, NodeProcess, Probe, latest_diag, stamp_ns, wait_until
 from sins_align.core.rotation import attitude_error, dcm_from_quat
-from sins_align.tools import replay
+from sins_align.tools import replay, simulate
 
 RUN = os.getpid()
 RELIABLE = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE,
@@ -51,48 +51,13 @@ def probe():
     p.close()
 
 
-def _write_moving_bag(path: Path):
-    """The car_with_turn trajectory (tactical IMU at 50 Hz, GNSS velocity at 10 Hz with 0.05
-    m/s noise and the lever arm), its truth on /imu_sim/truth."""
-    from sins_align.core.rotation import quat_from_dcm
-    from sins_align.io.bagio import Messages, open_writer, qos_profile, typestore
-    from sins_align.sim.trajectory import car_with_turn, simulate_trajectory
-
-    res = simulate_trajectory(car_with_turn(), rate=IMU_RATE, specs="tactical", seed=1,
-                              gnss_sigma=0.05, lever_arm=LEVER)
-    m, ts = Messages(), typestore()
-    T = ts.types
-    w = open_writer(path, "mcap")
-    ci = w.add_connection("/imu/data_raw", m.IMU, typestore=ts,
-                          offered_qos_profiles=[qos_profile()])
-    cv = w.add_connection("/gnss/fix_velocity", "geometry_msgs/msg/TwistWithCovarianceStamped",
-                          typestore=ts, offered_qos_profiles=[qos_profile()])
-    ct = w.add_connection("/imu_sim/truth", m.QUATERNION_STAMPED, typestore=ts,
-                          offered_qos_profiles=[qos_profile()])
-    t0 = 1_700_000_000 * 10**9
-    items = [(t0 + int(round(res.t[k + 1] * 1e9)), 1, k) for k in range(len(res.gyro))]
-    items += [(t0 + int(round(res.t[g] * 1e9)), 0, j) for j, g in enumerate(res.gnss_index)]
-    cov = np.zeros(36)
-    cov[0] = cov[7] = cov[14] = 0.05 ** 2
-    V3 = T["geometry_msgs/msg/Vector3"]
-    for ns, kind, i in sorted(items):
-        h = m.header(*divmod(ns, 10**9), "imu_link" if kind else "gnss_link")
-        if kind:
-            w.write(ci, ns, m.serialize(m.imu(h, (0.0, 0.0, 0.0, 1.0), (-1.0,) + (0.0,) * 8,
-                                              tuple(res.gyro[i]), (0.0,) * 9,
-                                              tuple(res.accel[i]), (0.0,) * 9)))
-            q = quat_from_dcm(res.C[i + 1])
-            w.write(ct, ns, m.serialize(m.QuaternionStamped(
-                header=h, quaternion=m.Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))))
-        else:
-            v = res.gnss_v[i]
-            msg = T["geometry_msgs/msg/TwistWithCovarianceStamped"](
-                header=h, twist=T["geometry_msgs/msg/TwistWithCovariance"](
-                    twist=T["geometry_msgs/msg/Twist"](linear=V3(x=v[0], y=v[1], z=v[2]),
-                                                       angular=V3(x=0.0, y=0.0, z=0.0)),
-                    covariance=cov.copy()))
-            w.write(cv, ns, ts.serialize_cdr(msg, msg.__msgtype__))
-    w.close()
+def _write_moving_bag(path: Path, latency: float = 0.1):
+    """simulate --trajectory car_with_turn: a tactical IMU at 50 Hz, GNSS velocity and fix at
+    10 Hz logged ``latency`` s after their stamps, the lever arm, the truth."""
+    assert simulate.main(["--trajectory", "car_with_turn", "--rate", str(IMU_RATE),
+                          "--grade", "tactical", "--seed", "1", "--gnss-noise", "0.05",
+                          "--gnss-latency", str(latency), "--lever-arm", *map(str, LEVER),
+                          str(path)]) == 0
 
 
 def _read(bag, topics):
@@ -103,10 +68,12 @@ def _read(bag, topics):
         return [(c.topic, r.deserialize(raw, c.msgtype)) for c, _, raw in r.messages(conns)]
 
 
+TOPICS = ("/gnss/fix_velocity", "/imu/data_raw")
+
+
 def _stamp_order(items):
-    """Header-stamp order, a velocity before the IMU sample of the same stamp (replay's)."""
-    key = {"/gnss/fix_velocity": 0, "/imu/data_raw": 1}
-    return sorted(items, key=lambda it: (stamp_ns(it[1].header.stamp), key[it[0]]))
+    """Header-stamp order; at equal stamps the velocity before the IMU sample (replay's)."""
+    return sorted(items, key=lambda it: (stamp_ns(it[1].header.stamp), TOPICS.index(it[0])))
 
 
 def _to_rclpy(topic, m):
@@ -129,6 +96,8 @@ def _to_rclpy(topic, m):
 
 
 def test_node_and_replay_agree_on_a_moving_bag_and_match_the_truth(tmp_path, probe):
+    """The bag's GNSS is logged 0.1 s after its stamps; replay merges by stamp, the node is
+    fed in stamp order: the same orientations, to the last bit."""
     bag = tmp_path / "car"
     _write_moving_bag(bag)
     yaml = tmp_path / "align.yaml"
@@ -138,9 +107,10 @@ def test_node_and_replay_agree_on_a_moving_bag_and_match_the_truth(tmp_path, pro
     assert replay.main([str(bag), "--params", str(yaml), "--topic", "/imu/data_raw",
                         "--output", str(out), "--summary-json", str(summary), "--quiet"]) == 0
     s = json.loads(summary.read_text())
-    assert s["velocity_reference"]["velocity_used"] == 501, s["velocity_reference"]
+    ref = s["velocity_reference"]
+    assert ref["velocity_used"] == ref["velocity_received"] == 501, ref
     expected = {stamp_ns(m.header.stamp): m for _, m in _read(out, {"/imu/data"})}
-    items = _stamp_order(_read(bag, {"/imu/data_raw", "/gnss/fix_velocity"}))
+    items = _stamp_order(_read(bag, set(TOPICS)))
     n_imu = sum(t == "/imu/data_raw" for t, _ in items)
     assert len(expected) == n_imu
 
@@ -318,3 +288,69 @@ def test_bad_velocity_parameters_stop_the_node_with_one_line(args, reason, tmp_p
     assert rc == 1, p.output()
     assert len(err) == 1 and reason in err[0], p.output()
 
+
+
+def test_align_node_aligns_the_moving_imu_sim_node_and_matches_its_truth(probe, tmp_path):
+    """imu_sim_node drives the car (GNSS velocity 0.1 s late, lever arm), align_node aligns
+    it over DDS from a 180 deg wrong heading guess: the flag turns true, diagnostics say the
+    heading is observable and give the biases, and every published attitude of the last
+    20 s is within 3 sigma of the simulator's truth at the same stamp."""
+    ns = f"/ms_{RUN}"
+    aligned = probe.subscribe(Bool, f"{ns}/alignment/aligned", LATCHED)
+    got = probe.subscribe(Imu, f"{ns}/imu/data", RELIABLE)
+    truth = probe.subscribe(QuaternionStamped, f"{ns}/imu_sim/truth", RELIABLE)
+    diags = probe.subscribe(DiagnosticArray, "/diagnostics", 50, maxlen=100)
+    lever = f"[{LEVER[0]}, {LEVER[1]}, {LEVER[2]}]"
+    node = NodeProcess("align_node", [
+        "-r", f"__ns:={ns}", "-r", "__node:=align_ms", "-p", "latitude:=34.0",
+        "-p", "grade:=tactical", "-p", "velocity_topic:=gnss/fix_velocity",
+        "-p", f"lever_arm:={lever}", "-p", "vehicle:=ground",
+        "-p", "initial_rpy:=[0.0, 0.0, -150.0]"], tmp_path, "align_ms")
+    sim = None
+    try:
+        wait_until(lambda: len(aligned) or not node.alive(), 30.0, "align_node to come up")
+        assert node.alive(), node.output()
+        sim = NodeProcess("imu_sim_node", [
+            "-r", f"__ns:={ns}", "-r", "__node:=sim_ms", "-p", "trajectory:=car_with_turn",
+            "-p", f"rate:={IMU_RATE}", "-p", "speed:=5.0", "-p", "grade:=tactical",
+            "-p", "seed:=2", "-p", "gnss_latency:=0.1", "-p", f"lever_arm:={lever}",
+            "-p", "wait_for_subscribers:=true", "-p", "exit_when_done:=true"], tmp_path,
+            "sim_ms")
+        sim.wait(timeout=60)
+        wait_until(lambda: len(got) >= 0.98 * IMU_RATE * 50 or not node.alive(), 30.0,
+                   f"the imu/data of the run (got {len(got)})")
+        status = "align_ms: alignment"
+
+        def final():
+            d = latest_diag(diags, status)
+            return d if d and int(d["velocity_messages"]) >= 490 else None
+        try:
+            d = wait_until(final, 10.0, "diagnostics counting the velocity messages")
+        except AssertionError as e:
+            raise AssertionError(f"{e}: {latest_diag(diags, status)}") from None
+    finally:
+        for p in (sim, node):
+            if p is not None:
+                p.stop()
+    assert "Traceback" not in node.stderr(), node.output()
+    flags = [m.data for m in aligned.msgs]
+    assert flags[0] is False and True in flags, (flags, node.output())
+    assert d["heading_observable"] == "true", d
+    assert d["velocity_used"] == d["velocity_messages"] and "bias_gyro_z_deg_h" in d, d
+    true_q = {stamp_ns(m.header.stamp): m.quaternion for m in truth.msgs}
+    out = [m for m in got.msgs if stamp_ns(m.header.stamp) in true_q]
+    last = max(stamp_ns(m.header.stamp) for m in out)
+    worst = 0.0
+    for m in out:
+        k = stamp_ns(m.header.stamp)
+        if k < last - 20 * 10**9:
+            continue
+        q = true_q[k]
+        err = attitude_error(dcm_from_quat([q.x, q.y, q.z, q.w]), dcm_from_quat(
+            [m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w]))
+        std = np.sqrt(np.diag(np.array(m.orientation_covariance).reshape(3, 3)))
+        worst = max(worst, float(np.max(np.abs(err) / std)))
+    assert worst < 3.0, worst
+    print(f"live: aligned, last 20 s within {worst:.2f} sigma of the truth; diagnostics "
+          f"std E/N/U {d['std_east_deg']}, {d['std_north_deg']}, {d['std_up_deg']} deg, gyro "
+          f"bias z {d['bias_gyro_z_deg_h']} deg/h; {d['velocity_used']} velocities used")
