@@ -394,3 +394,30 @@ def test_unknown_heading_bank_publishes_an_honest_spread():
     err = attitude_error(r.C[n], al.dcm)
     assert np.all(np.abs(err) <= 3.0 * np.sqrt(np.diag(al.covariance)))
     assert math.isfinite(al.heading_deg)
+
+
+def test_navigation_grade_gyrocompasses_parked_and_keeps_heading_driving_off():
+    """From standstill to motion in one run: parked, the velocity reference's zeros make the
+    bank gyrocompass (Earth rate seen by a 0.01 deg/h gyro); driving off keeps the heading."""
+    traj = Trajectory((Segment(200.0), Segment(10.0, accel=1.5), Segment(30.0)), 34.0, 108.0,
+                      0.0, 200.0, 0.0, "park_then_drive")
+    r = simulate_trajectory(traj, 100.0, "navigation", seed=1, gnss_rate=10.0, gnss_sigma=0.02)
+    al = MotionAligner(MotionConfig(latitude_deg=34.0, longitude_deg=108.0,
+                                    specs="navigation", velocity_noise=0.02))
+    for tg, vg in zip(r.gnss_t, r.gnss_v):
+        al.add_velocity(tg, vg)
+    rows = []
+    for k in range(0, len(r.gyro), 500):
+        al.update(r.t[k + 1:k + 501], r.gyro[k:k + 500], r.accel[k:k + 500])
+        j = min(k + 500, len(r.gyro))
+        rows.append((r.t[j], attitude_error(r.C[j], al.dcm) / DEG, al.std_enu_deg, al.aligned,
+                     al.hypotheses))
+    t = np.array([x[0] for x in rows])
+    E = np.array([x[1] for x in rows])
+    S = np.array([x[2] for x in rows])
+    A = np.array([x[3] for x in rows])
+    parked = t < 200.0
+    assert rows[int(np.searchsorted(t, 100.0))][4] == 1          # one hypothesis left
+    assert A[parked & (t > 100.0)].all() and S[np.searchsorted(t, 199.0), 2] < 0.15
+    assert np.all(np.abs(E) <= 3.0 * S)
+    assert abs(E[-1, 2]) < 0.05 and A[-1]

@@ -86,8 +86,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sins_align.core.earth import GRAVITY_PER_METRE, OMEGA_IE, normal_gravity, radii
-from sins_align.core.rotation import (dcm_from_quat, quat_from_rotvec, quat_multiply, skew,
-                                      so3_exp, so3_log)
+from sins_align.core.rotation import quat_from_rotvec, skew, so3_exp, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "IPHI", "INU",
@@ -122,6 +121,65 @@ class NoiseModel:
     gyro_scale: float = 0.0
 
 
+# Small-array kernels: numpy's general functions (np.cross, stacks of components) cost tens of
+# microseconds on (K, m, 3) arrays this size; a product with a constant tensor costs one.
+_P1, _P2 = [1, 2, 0], [2, 0, 1]
+
+
+def _cross(a, b):
+    """a x b over the last axis."""
+    return a[..., _P1] * b[..., _P2] - a[..., _P2] * b[..., _P1]
+
+
+_SKEW = np.zeros((3, 9))                 # skew(v).ravel() = v @ _SKEW
+for _i, _j, _k, _s in ((0, 1, 2, -1), (0, 2, 1, 1), (1, 0, 2, 1), (1, 2, 0, -1),
+                       (2, 0, 1, -1), (2, 1, 0, 1)):
+    _SKEW[_k, 3 * _i + _j] = _s
+
+
+def _skew(v):
+    """(v x) for (..., 3) vectors: (..., 3, 3)."""
+    return (v @ _SKEW).reshape(v.shape[:-1] + (3, 3))
+
+
+# Hamilton product of [x, y, z, w] quaternions: (p q) = (p @ _QMUL).reshape(4, 4) @ q
+_QMUL = np.zeros((4, 4, 4))              # [j, i, k]: coefficient of p_j q_k in (p q)_i
+for _i, _terms in enumerate((
+        ((3, 0, 1), (0, 3, 1), (1, 2, 1), (2, 1, -1)),
+        ((3, 1, 1), (0, 2, -1), (1, 3, 1), (2, 0, 1)),
+        ((3, 2, 1), (0, 1, 1), (1, 0, -1), (2, 3, 1)),
+        ((3, 3, 1), (0, 0, -1), (1, 1, -1), (2, 2, -1)))):
+    for _j, _k, _s in _terms:
+        _QMUL[_j, _i, _k] = _s
+_QMUL = _QMUL.reshape(4, 16)
+
+
+def _qmul(p, q):
+    """Hamilton products p q of (..., 4) quaternions [x, y, z, w]."""
+    L = (p @ _QMUL).reshape(p.shape[:-1] + (4, 4))
+    return (L @ q[..., None])[..., 0]
+
+
+# DCM of a unit quaternion as a quadratic form: C.ravel() = (q q^T).ravel() @ _QDCM
+_QDCM = np.zeros((4, 4, 9))
+for _e, _terms in enumerate((
+        ((3, 3, 1), (0, 0, 1), (1, 1, -1), (2, 2, -1)),      # C00 = w2 + x2 - y2 - z2
+        ((0, 1, 2), (3, 2, -2)), ((0, 2, 2), (3, 1, 2)),
+        ((0, 1, 2), (3, 2, 2)),
+        ((3, 3, 1), (0, 0, -1), (1, 1, 1), (2, 2, -1)),
+        ((1, 2, 2), (3, 0, -2)), ((0, 2, 2), (3, 1, -2)), ((1, 2, 2), (3, 0, 2)),
+        ((3, 3, 1), (0, 0, -1), (1, 1, -1), (2, 2, 1)))):
+    for _k, _l, _s in _terms:
+        _QDCM[_k, _l, _e] += _s
+_QDCM = _QDCM.reshape(16, 9)
+
+
+def _dcm(q):
+    """DCM of (..., 4) unit quaternions [x, y, z, w]: (..., 3, 3)."""
+    return ((q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
+            @ _QDCM).reshape(q.shape[:-1] + (3, 3))
+
+
 def _w_in(v, lat, h):
     """Earth rate and transport rate, ENU, for (K, 3) velocities and (K,) lat, h."""
     rm, rn = radii(lat)
@@ -138,7 +196,7 @@ def _prefix_quat(q: np.ndarray) -> np.ndarray:
     s = 1
     m = q.shape[1]
     while s < m:
-        q[:, s:] = quat_multiply(q[:, :-s], q[:, s:])
+        q[:, s:] = _qmul(q[:, :-s], q[:, s:])
         s *= 2
     return q
 
@@ -257,15 +315,15 @@ class InvariantEKF:
         q_full, q_half = q[:K], q[K:]
         G = _prefix_quat(q_full)                     # Gamma_j, j = 1..m
         Gprev = np.concatenate([np.broadcast_to([0.0, 0.0, 0.0, 1.0], (K, 1, 4)), G[:, :-1]], 1)
-        R_mid = dcm_from_quat(quat_multiply(Gprev, q_half))    # (K, m, 3, 3)
-        Gm = dcm_from_quat(G[:, -1])                 # (K, 3, 3)
+        R_mid = _dcm(_qmul(Gprev, q_half))           # (K, m, 3, 3)
+        Gm = _dcm(G[:, -1] / np.linalg.norm(G[:, -1], axis=-1, keepdims=True))
         dV = np.einsum("kmij,kmj->kmi", R_mid, f) * dt[None, :, None]
         V = np.cumsum(dV, axis=1)
         Ttot = float(dt.sum())
         # ---------------------------------------------------------- covariance
         Rdt = R_mid * dt[None, :, None, None]
         S = np.cumsum(Rdt, axis=1)
-        Mx = np.einsum("kmij,kmjl->kil", skew(dV), S - 0.5 * Rdt)
+        Mx = np.einsum("kmij,kmjl->kil", _skew(dV), S - 0.5 * Rdt)
         GmT = _mT(Gm)
         Vm = V[:, -1]
         n = self.n
@@ -273,7 +331,7 @@ class InvariantEKF:
         Phi[:, IPHI, IPHI] = GmT
         GS = GmT @ S[:, -1]
         Phi[:, IPHI, IBG] = -GS
-        Phi[:, INU, IPHI] = -GmT @ skew(Vm)
+        Phi[:, INU, IPHI] = -GmT @ _skew(Vm)
         Phi[:, INU, INU] = GmT
         Phi[:, INU, IBG] = GmT @ Mx
         Phi[:, INU, IBA] = -GS
@@ -288,7 +346,7 @@ class InvariantEKF:
         if nz.gyro_scale > 0.0:
             turn = nz.gyro_scale * np.abs(rv).sum(axis=1)           # (K, 3), body (start)
             Q[:, IPHI, IPHI] += GmT @ (turn[:, :, None] ** 2 * _I3) @ Gm
-        c = qg * (GmT @ skew(A) @ Gm)
+        c = qg * (GmT @ _skew(A) @ Gm)
         Q[:, IPHI, INU] = c
         Q[:, INU, IPHI] = _mT(c)
         Q[:, INU, INU] = qa * Ttot * _I3 + qg * (GmT @ B @ Gm)
@@ -305,14 +363,14 @@ class InvariantEKF:
         T = np.cumsum(dt)
         t_mid = T - 0.5 * dt
         dvn = np.einsum("kij,kmj->kmi", C0, dV)      # specific-force increments, n (start)
-        dvn = dvn - np.cross(w_in[:, None], dvn) * t_mid[None, :, None]
+        dvn = dvn - _cross(w_in[:, None], dvn) * t_mid[None, :, None]
         dvn[..., 2] -= g0[:, None] * dt[None]
         v_pre = v0[:, None] + np.cumsum(dvn, axis=1)
         v_prev = np.concatenate([v0[:, None], v_pre[:, :-1]], 1)
         v_mid = 0.5 * (v_prev + v_pre)
         vz_dt = v_mid[..., 2] * dt[None]
         h_mid = h0[:, None] + np.cumsum(vz_dt, axis=1) - 0.5 * vz_dt
-        acc = -np.cross(Om[:, None], v_mid)
+        acc = -_cross(Om[:, None], v_mid)
         acc[..., 2] += GRAVITY_PER_METRE * (h_mid - h0[:, None])
         v_new = v_pre + np.cumsum(acc * dt[None, :, None], axis=1)
         v_prev = np.concatenate([v0[:, None], v_new[:, :-1]], 1)
@@ -374,15 +432,15 @@ class InvariantEKF:
         w_ie, w_en = _w_in(self.v, self.lat, self.h)
         a = np.einsum("kji,kj->ki", C, w_ie + w_en)
         w_nb = self.w_last - a
-        u = np.cross(w_nb, lever)
+        u = _cross(w_nb, lever)
         z_hat = self.v + np.einsum("kij,kj->ki", C, u)
         K = self.K
         Hb = np.zeros((K, 3, self.n))
-        Hb[:, :, IPHI] = skew(u) - skew(lever) @ skew(a)
+        Hb[:, :, IPHI] = _skew(u) - _skew(lever) @ _skew(a)
         Hb[:, :, INU] = -_I3
-        Hb[:, :, IBG] = -skew(lever)
+        Hb[:, :, IBG] = -_skew(lever)
         if self.i_lev is not None:
-            Hb[:, :, self.i_lev] = -skew(w_nb)
+            Hb[:, :, self.i_lev] = -_skew(w_nb)
         return z_hat, C @ Hb
 
     def update_velocity(self, z, R, nis_limit=None):
@@ -401,7 +459,7 @@ class InvariantEKF:
         """Non-holonomic constraint: the body velocity along ``axis`` is zero (+- sigma)."""
         vb = np.einsum("kji,kj->ki", self.C, self.v)
         H = np.zeros((self.K, 1, self.n))
-        H[:, 0, IPHI] = -skew(vb)[:, axis, :]
+        H[:, 0, IPHI] = -_skew(vb)[:, axis, :]
         H[:, 0, INU] = -_I3[axis]
         return self._apply(-vb[:, axis:axis + 1], H, np.array([[sigma * sigma]]), nis_limit)
 
