@@ -1089,7 +1089,7 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
     else:
         estimator = f"in motion, vehicle {c['vehicle']}"
     used = "" if s["samples_used"] is None else f" ({s['samples_used']} used)"
-    stage = "" if s["stage"] is None else f" ({s['stage']} pass)"
+    stage = "" if s["stage"] is None or ref is not None else f" ({s['stage']} pass)"
     lines = [
         f"replay {s['bag']}  topic {s['topic']}",
         f"  config    latitude {c['latitude_deg']:.6f} deg, height {c['height_m']:g} m, "
