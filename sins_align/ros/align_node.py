@@ -11,6 +11,11 @@ Topics (relative names, remap as usual)
   history (``queue_size``) so the backtrack pass does not drop samples. Taken serialised:
   the usual encoding is read and republished in place (:class:`sins_align.io.cdr.ImuLayout`),
   anything else is deserialised by rclpy; both give the same output.
+- sub ``velocity_topic`` (when set) of ``velocity_type`` (TwistWithCovarianceStamped,
+  TwistStamped or nav_msgs/Odometry) and ``navsat_topic`` (sensor_msgs/NavSatFix): the
+  in-motion alignment's velocity reference and position, converted by
+  :mod:`sins_align.io.velocity` through a :class:`~sins_align.ros.reference.ReferenceFeed`
+  (the replay's too); sensor-data QoS, depth 100.
 - pub ``imu/data``      sensor_msgs/Imu — the input sample (same header) with ``orientation``
   (C_b^n, IMU frame in ENU) and ``orientation_covariance`` (rad^2, E/N/U) filled in.
   Rejected samples are not republished. Reliable, volatile, history depth ``queue_size``:
@@ -448,7 +453,9 @@ def main(args: list[str] | None = None) -> int:
     parser = build_arg_parser(
         "align_node",
         "SINS self-alignment node: roll, pitch and true heading of an IMU on a quasi-static "
-        "base, from gravity and Earth rate.\nSubscribes imu/data_raw; publishes imu/data, "
+        "base, from gravity and Earth rate, or in motion from a velocity reference "
+        "(velocity_topic).\nSubscribes imu/data_raw (and velocity_topic, navsat_topic when "
+        "set); publishes imu/data, "
         "alignment/aligned (latched), alignment/euler_deg, /diagnostics; service "
         "alignment/reset.",
         param_help(ALIGN_NODE_PARAMS, "parameters (set with --ros-args -p name:=value or "
