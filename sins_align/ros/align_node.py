@@ -73,8 +73,8 @@ REASON_TEXT = {
     "undecodable": "the message bytes are not a valid sensor_msgs/Imu",
 }
 
-#: The in-motion estimator's refusals of measurements (MOTION_REJECT_REASONS).
-MEASUREMENT_REASON_TEXT = {
+#: What the in-motion estimator's own reasons mean (MOTION_REJECT_REASONS), where they differ.
+MOTION_REASON_TEXT = {
     "measurement_too_late": "a velocity or attitude stamped more than max_measurement_lag "
                             "before the newest IMU sample (GNSS and IMU clocks apart?)",
     "measurement_invalid": "a measurement with an unusable covariance or value",
@@ -341,10 +341,9 @@ def make_node_class():
             st = self._warn_state.setdefault(reason, [-math.inf, 0])
             st[1] += 1
             if now - st[0] >= WARN_PERIOD:
-                if self.motion and reason in MEASUREMENT_REASON_TEXT:
-                    what, text = "input(s)", MEASUREMENT_REASON_TEXT[reason]
-                else:
-                    what, text = "sample(s)", REASON_TEXT.get(reason, "?")
+                what = "input(s)" if reason.startswith("measurement") else "sample(s)"
+                text = (self.motion and MOTION_REASON_TEXT.get(reason)) or \
+                    REASON_TEXT.get(reason, "?")
                 self.get_logger().warning(f"rejected {st[1]} {what}: {reason} ({text})")
                 st[0], st[1] = now, 0
 
