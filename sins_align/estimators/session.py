@@ -2,7 +2,9 @@
 
 An :class:`AlignmentSession` owns one estimator (anything with the interface of
 :mod:`sins_align.estimators`: ``update``, ``reset``, ``subscribe``, ``t_last``, ``aligned``,
-``config.max_gap``) and decides, the same way for the live node and for replay:
+``config.max_gap``; an in-motion one also ``add_velocity``, ``add_position``,
+``add_attitude``, passed on by the methods of the same names) and decides, the same way for
+the live node and for replay:
 
 - whether a sample was accepted (republished): no 'rejected' event while it was processed;
 - when the input has restarted: :data:`BACKWARD_JUMP_CONFIRM` stamps in a row more than
@@ -124,6 +126,30 @@ class AlignmentSession:
                 accepted += self.feed(float(t[b]), w[b], f[b])
             k = b + 1
         return accepted
+
+    # -------------------------------------------------------------- aiding measurements
+    def add_velocity(self, t: float, v_enu, cov=None) -> bool:
+        """A velocity measurement (ENU, m/s) for an in-motion estimator; True when it was
+        taken. A restart asked for is applied first, as before a sample."""
+        return self._measurement(self.estimator.add_velocity, t, v_enu, cov)
+
+    def add_position(self, t: float, lat_deg: float, lon_deg: float, height_m: float) -> bool:
+        """A position fix for an in-motion estimator; True when it was taken."""
+        return self._measurement(self.estimator.add_position, t, lat_deg, lon_deg, height_m)
+
+    def add_attitude(self, t: float, quaternion_xyzw, cov=None) -> bool:
+        """A master INS attitude (body in ENU) for an in-motion estimator; True when taken."""
+        return self._measurement(self.estimator.add_attitude, t, quaternion_xyzw, cov)
+
+    def _measurement(self, add, t, *values) -> bool:
+        if self._restart_request:
+            self.restart(self._restart_request)
+        n = self._rejections
+        try:
+            return bool(add(t, *values))
+        finally:
+            # a refused measurement is no rejected sample: feed() counts samples only
+            self._rejections = n
 
     def flag_to_publish(self) -> bool | None:
         """The aligned flag if it is to be published now (it differs from the value this

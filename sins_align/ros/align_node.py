@@ -11,6 +11,11 @@ Topics (relative names, remap as usual)
   history (``queue_size``) so the backtrack pass does not drop samples. Taken serialised:
   the usual encoding is read and republished in place (:class:`sins_align.io.cdr.ImuLayout`),
   anything else is deserialised by rclpy; both give the same output.
+- sub ``velocity_topic`` (when set) of ``velocity_type`` (TwistWithCovarianceStamped,
+  TwistStamped or nav_msgs/Odometry) and ``navsat_topic`` (sensor_msgs/NavSatFix): the
+  in-motion alignment's velocity reference and position, converted by
+  :mod:`sins_align.io.velocity` through a :class:`~sins_align.ros.reference.ReferenceFeed`
+  (the replay's too); sensor-data QoS, depth 100.
 - pub ``imu/data``      sensor_msgs/Imu — the input sample (same header) with ``orientation``
   (C_b^n, IMU frame in ENU) and ``orientation_covariance`` (rad^2, E/N/U) filled in.
   Rejected samples are not republished. Reliable, volatile, history depth ``queue_size``:
@@ -42,8 +47,10 @@ import math
 import sys
 import time
 
+from sins_align.io.velocity import VELOCITY_TYPES
 from sins_align.ros.params import (ALIGN_NODE_PARAMS, NODE_NAME, PARAMS, check_param,
-                                   config_from_params, param_help, param_spec)
+                                   config_from_params, estimator_config, make_estimator,
+                                   param_help, param_spec, velocity_reference)
 from sins_align.ros.runtime import (build_arg_parser, declare_params, node_main, plain,
                                     refuse_start, spin_events)
 
@@ -66,6 +73,14 @@ REASON_TEXT = {
     "undecodable": "the message bytes are not a valid sensor_msgs/Imu",
 }
 
+#: What the in-motion estimator's own reasons mean (MOTION_REJECT_REASONS), where they differ.
+MOTION_REASON_TEXT = {
+    "measurement_too_late": "a velocity or attitude stamped more than max_measurement_lag "
+                            "before the newest IMU sample (GNSS and IMU clocks apart?)",
+    "measurement_invalid": "a measurement with an unusable covariance or value",
+    "time_jump": "IMU stamp gap above max_gap: the in-motion alignment starts over",
+}
+
 WARN_PERIOD = 5.0   # s (wall) between warnings for one rejection reason
 
 
@@ -80,26 +95,36 @@ def make_node_class():
     from rclpy.node import Node
     from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                            qos_profile_sensor_data)
+    from geometry_msgs.msg import TwistStamped, TwistWithCovarianceStamped
+    from nav_msgs.msg import Odometry
     from rclpy.serialization import deserialize_message
-    from sensor_msgs.msg import Imu
+    from sensor_msgs.msg import Imu, NavSatFix
     from std_msgs.msg import Bool
     from std_srvs.srv import Trigger
 
     from sins_align.io.cdr import ImuLayout
-    from sins_align.estimators.quasi_static import Aligner
     from sins_align.estimators.session import AlignmentSession
     from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_output_values,
-                                        imu_sample, node_diagnostics)
+                                        imu_sample, motion_diagnostics, node_diagnostics)
+    from sins_align.ros.reference import REFUSE_TEXT, VELOCITY_SILENCE, ReferenceFeed
+
+    #: velocity_type -> message class of the velocity topic
+    VELOCITY_MSG = {"twist_with_covariance": TwistWithCovarianceStamped,
+                    "twist": TwistStamped, "odometry": Odometry}
 
     class AlignNode(Node):
-        """ROS wrapper of :class:`Aligner`: messages in, messages out, nothing else."""
+        """ROS wrapper of the estimator (the quasi-static :class:`Aligner`, or the in-motion
+        ``MotionAligner`` when ``velocity_topic`` is set): messages in, messages out, nothing
+        else."""
 
         def __init__(self, **kwargs):
             super().__init__(NODE_NAME, **kwargs)
             reason = self._declare_parameters()
             if reason is None:
                 try:
-                    self.config = config_from_params(self._alignment_values())
+                    values = self._alignment_values()
+                    self.config = estimator_config(values)
+                    self.reference = velocity_reference(values)
                 except ValueError as e:
                     reason = str(e)
             if reason is not None:
@@ -108,9 +133,13 @@ def make_node_class():
             self.add_on_set_parameters_callback(self._on_set_parameters)
             self.add_post_set_parameters_callback(self._after_set_parameters)
 
-            self.aligner = Aligner(self.config)
+            self.aligner = make_estimator(self.config)
+            #: in-motion alignment: the estimator takes the velocity reference (capability
+            #: decided once here; the quasi-static Aligner's own extras are used otherwise)
+            self.motion = self.reference.enabled
             self.session = AlignmentSession(self.aligner, on_event=self._on_event)
             self.stamp_clock = StampClock()
+            self._undecodable = 0          # in-motion: counted here (the Aligner counts its own)
             self.last_header = None
             self._rx_count = 0
             self._rate_mark = (time.monotonic(), 0)
@@ -133,6 +162,9 @@ def make_node_class():
             self._layout = None   # cdr.ImuLayout of the last input that had one
             self.sub = self.create_subscription(Imu, "imu/data_raw", self._on_raw, qos_in,
                                                 raw=True)
+            self.feed = None
+            if self.motion:
+                self._subscribe_reference(depth)
             self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
             self.euler_timer = None
             self._start_euler_timer(float(self.get_parameter("euler_rate").value))
@@ -143,12 +175,43 @@ def make_node_class():
                 post_callback=self._on_clock_jump)
             self._publish_aligned(force=True)
             c = self.config
-            self.get_logger().info(
-                f"aligning at latitude {c.latitude_deg:.4f} deg, model {c.model}, "
-                f"backtrack {'after %g s' % c.backtrack_time if c.backtrack else 'off'}; "
-                f"heading {'observable' if self.aligner.heading_observable else 'UNOBSERVABLE'}"
-                f" (limit std E/N/U {', '.join('%.4f' % x for x in self.aligner.limit_std_deg)}"
-                " deg)")
+            if self.motion:
+                r = self.reference
+                self.get_logger().info(
+                    f"in-motion alignment at latitude {c.latitude_deg:.4f} deg, longitude "
+                    f"{c.longitude_deg:.4f} deg, vehicle {c.vehicle}; velocity reference "
+                    f"{self.sub_velocity.topic_name} ({VELOCITY_TYPES[r.type]}, {r.frame}), "
+                    f"lever arm {', '.join('%g' % x for x in c.lever_arm)} m; position "
+                    + (f"from {self.sub_navsat.topic_name}" if r.navsat_topic
+                       else "from the parameters"))
+            else:
+                self.get_logger().info(
+                    f"aligning at latitude {c.latitude_deg:.4f} deg, model {c.model}, "
+                    f"backtrack {'after %g s' % c.backtrack_time if c.backtrack else 'off'}; "
+                    f"heading "
+                    f"{'observable' if self.aligner.heading_observable else 'UNOBSERVABLE'}"
+                    f" (limit std E/N/U "
+                    f"{', '.join('%.4f' % x for x in self.aligner.limit_std_deg)} deg)")
+
+        def _subscribe_reference(self, depth: int):
+            """The velocity topic (its configured type) and the NavSatFix topic, if set:
+            sensor-data QoS (best effort takes reliable publishers too)."""
+            r = self.reference
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=min(depth, 100),
+                             reliability=qos_profile_sensor_data.reliability,
+                             durability=qos_profile_sensor_data.durability)
+            self.feed = ReferenceFeed(self.session, r, self.stamp_clock,
+                                      on_refused=self._warn_refused)
+            self.sub_velocity = self.create_subscription(
+                VELOCITY_MSG[r.type], r.topic, self._on_velocity, qos)
+            self.sub_navsat = None
+            if r.navsat_topic:
+                self.sub_navsat = self.create_subscription(NavSatFix, r.navsat_topic,
+                                                           self._on_navsat, qos)
+            self._first_imu_wall: float | None = None
+            self._last_imu_wall = -math.inf
+            self._velocity_wall: float | None = None
+            self._silence_warned = -math.inf
 
         # -------------------------------------------------------------- parameters
         def _declare_parameters(self) -> str | None:
@@ -163,12 +226,18 @@ def make_node_class():
             return {p.name: plain(self.get_parameter(p.name).value) for p in PARAMS}
 
         def _on_set_parameters(self, params) -> SetParametersResult:
-            """Validate runtime changes; the new AlignConfig is applied after the set."""
+            """Validate runtime changes; the new AlignConfig is applied after the set. The
+            in-motion estimator reads its configuration at start only: its parameters are
+            refused at run time (the node-only ones are still settable)."""
             values = self._alignment_values()
             for p in params:
                 spec = param_spec(p.name, "node") or param_spec(p.name, "align")
                 if spec is None:
                     continue   # not ours (use_sim_time ...)
+                if self.motion and spec.scope == "align":
+                    return SetParametersResult(successful=False, reason=(
+                        f"{p.name} cannot be changed at run time during an in-motion "
+                        "alignment (velocity_topic is set): restart the node"))
                 reason = check_param(p.name, plain(p.value), spec.scope)
                 if spec.scope == "align":
                     values[p.name] = plain(p.value)
@@ -185,7 +254,8 @@ def make_node_class():
             names = {p.name for p in params}
             if "euler_rate" in names:
                 self._start_euler_timer(float(self.get_parameter("euler_rate").value))
-            if self._pending is not None and names & {p.name for p in PARAMS}:
+            if self._pending is not None and not self.motion \
+                    and names & {p.name for p in PARAMS}:
                 # only non-read-only (non-structural) fields can differ: swap the config,
                 # keep the filter state and the aligned flag
                 self.config = self._pending
@@ -214,7 +284,11 @@ def make_node_class():
                         msg = deserialize_message(raw, Imu)
                     except Exception:            # malformed bytes: count, warn, keep going
                         self._rx_count += 1
-                        self.aligner.reject_undecodable()   # warned through _on_event
+                        if self.motion:
+                            self._undecodable += 1
+                            self._warn_rejected("undecodable")
+                        else:
+                            self.aligner.reject_undecodable()   # warned through _on_event
                         return
                     self._on_imu(msg)
                     return
@@ -240,7 +314,20 @@ def make_node_class():
         def _sample(self, t: float, w, f) -> bool:
             """One sample through the session; True when it is to be republished."""
             self._rx_count += 1
+            if self.feed is not None:
+                self._last_imu_wall = time.monotonic()
+                if self._first_imu_wall is None:
+                    self._first_imu_wall = self._last_imu_wall
             return self.session.feed(t, w, f)
+
+        def _on_velocity(self, msg):
+            """A velocity-reference message: converted and handed over by the feed."""
+            self._velocity_wall = time.monotonic()
+            self.feed.on_velocity(msg)
+            self._publish_aligned()
+
+        def _on_navsat(self, msg):
+            self.feed.on_navsat(msg)
 
         def _on_event(self, event):
             """The Aligner's events: throttled warnings for rejections, restarts logged."""
@@ -254,9 +341,34 @@ def make_node_class():
             st = self._warn_state.setdefault(reason, [-math.inf, 0])
             st[1] += 1
             if now - st[0] >= WARN_PERIOD:
-                self.get_logger().warning(
-                    f"rejected {st[1]} sample(s): {reason} ({REASON_TEXT.get(reason, '?')})")
+                what = "input(s)" if reason.startswith("measurement") else "sample(s)"
+                text = (self.motion and MOTION_REASON_TEXT.get(reason)) or \
+                    REASON_TEXT.get(reason, "?")
+                self.get_logger().warning(f"rejected {st[1]} {what}: {reason} ({text})")
                 st[0], st[1] = now, 0
+
+        def _warn_refused(self, kind: str, reason: str, text: str):
+            """A velocity or NavSatFix message the conversion refused (throttled)."""
+            now = time.monotonic()
+            st = self._warn_state.setdefault(f"{kind}:{reason}", [-math.inf, 0])
+            st[1] += 1
+            if now - st[0] >= WARN_PERIOD:
+                topic = (self.sub_velocity if kind == "velocity" else self.sub_navsat).topic_name
+                self.get_logger().warning(
+                    f"refused {st[1]} message(s) on {topic}: {text} "
+                    f"({REFUSE_TEXT.get(reason, reason)})")
+                st[0], st[1] = now, 0
+
+        def _velocity_silence(self) -> float | None:
+            """How long IMU data has come without a velocity message (wall s, since the first
+            sample or the last velocity message), when above VELOCITY_SILENCE and the IMU
+            data still comes; else None."""
+            if self._first_imu_wall is None or \
+                    time.monotonic() - self._last_imu_wall > VELOCITY_SILENCE:
+                return None
+            last = max(self._first_imu_wall, self._velocity_wall or -math.inf)
+            silent = self._last_imu_wall - last
+            return silent if silent > VELOCITY_SILENCE else None
 
         def _on_clock_jump(self, jump):
             # runs inside the clock update: only flag it, the next sample restarts
@@ -265,11 +377,12 @@ def make_node_class():
                     f"ROS time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s")
 
         def _on_reset(self, request, response):
-            elapsed = self.aligner.elapsed
+            previous = "" if self.motion else \
+                f" (previous run: {self.aligner.elapsed:.1f} s of data)"
             self.session.restart("reset service called")
             self._publish_aligned()
             response.success = True
-            response.message = f"alignment restarted (previous run: {elapsed:.1f} s of data)"
+            response.message = "alignment restarted" + previous
             return response
 
         # -------------------------------------------------------------- outputs
@@ -281,10 +394,12 @@ def make_node_class():
                 value = bool(self.aligner.aligned)
             if value is not None:
                 self.pub_aligned.publish(Bool(data=value))
-                if value and self.aligner.time_to_aligned is not None:
+                if value and (self.motion or self.aligner.time_to_aligned is not None):
                     std = self.aligner.std_enu_deg
+                    when = ("" if self.motion else
+                            f" after {self.aligner.time_to_aligned:.1f} s of data")
                     self.get_logger().info(
-                        f"ALIGNED after {self.aligner.time_to_aligned:.1f} s of data: "
+                        f"ALIGNED{when}: "
                         f"rpy {', '.join('%.4f' % x for x in euler_deg(self.aligner))} deg, "
                         f"std E/N/U {std[0]:.4f}, {std[1]:.4f}, {std[2]:.4f} deg")
 
@@ -303,9 +418,23 @@ def make_node_class():
                 self._input_rate = (self._rx_count - n0) / (now - t0)
             self._rate_mark = (now, self._rx_count)
             al = self.aligner
-            level, message, values, self._rejected_seen = node_diagnostics(
-                al, self._input_rate, self._rejected_seen, self.session.resets,
-                self.session.last_reset_reason)
+            if self.motion:
+                silent = self._velocity_silence()
+                if silent is not None and now - self._silence_warned >= WARN_PERIOD:
+                    self._silence_warned = now
+                    self.get_logger().warning(
+                        f"no velocity messages on {self.sub_velocity.topic_name} "
+                        f"({VELOCITY_TYPES[self.reference.type]}) for {silent:.0f} s while "
+                        "IMU data comes: heading cannot be aligned without them (check the "
+                        "topic name and type: velocity_topic, velocity_type)")
+                level, message, values, self._rejected_seen = motion_diagnostics(
+                    al, self._input_rate, self._rejected_seen, self.session.resets,
+                    self.session.last_reset_reason, self.feed, self.sub_velocity.topic_name,
+                    silent, self._undecodable)
+            else:
+                level, message, values, self._rejected_seen = node_diagnostics(
+                    al, self._input_rate, self._rejected_seen, self.session.resets,
+                    self.session.last_reset_reason)
             st = DiagnosticStatus(
                 level=bytes([level]), name=f"{self.get_name()}: alignment", message=message,
                 hardware_id=self.last_header[2] if self.last_header else "",
@@ -323,7 +452,9 @@ def main(args: list[str] | None = None) -> int:
     parser = build_arg_parser(
         "align_node",
         "SINS self-alignment node: roll, pitch and true heading of an IMU on a quasi-static "
-        "base, from gravity and Earth rate.\nSubscribes imu/data_raw; publishes imu/data, "
+        "base, from gravity and Earth rate, or in motion from a velocity reference "
+        "(velocity_topic).\nSubscribes imu/data_raw (and velocity_topic, navsat_topic when "
+        "set); publishes imu/data, "
         "alignment/aligned (latched), alignment/euler_deg, /diagnostics; service "
         "alignment/reset.",
         param_help(ALIGN_NODE_PARAMS, "parameters (set with --ros-args -p name:=value or "

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sins_align.core.specs import DPH, UG
 from sins_align.estimators.quasi_static import Aligner
 
 #: diagnostic_msgs/DiagnosticStatus levels
@@ -31,6 +32,13 @@ STATE_TEXT = {
     "aligned": "aligned",
     "disturbed": "disturbed: the platform is not quasi-static",
     "fault": "fault: gyro rates do not match the accelerometer (deg/s sent as rad/s?)",
+}
+
+
+#: The in-motion estimator's states where they read otherwise.
+MOTION_STATE_TEXT = {
+    "waiting": "waiting for IMU data and a velocity measurement",
+    "aligning": "aligning in motion",
 }
 
 
@@ -125,6 +133,84 @@ def node_diagnostics(al: Aligner, input_rate_hz: float | None, rejected_seen: in
         ("last_reset_reason", last_reset_reason),
     ]
     return level, message, values, rejected
+
+
+#: m/s^2 per mg (bias estimates in diagnostics and the replay summary)
+MG = 1e3 * UG
+
+
+def bias_estimates(est) -> tuple[list[float], list[float]]:
+    """The gyro bias estimate in deg/h and the accelerometer bias estimate in mg (IMU axes)
+    of an estimator that has them (``bias_gyro`` rad/s, ``bias_accel`` m/s^2)."""
+    return ((np.asarray(est.bias_gyro, dtype=float) / DPH).tolist(),
+            (np.asarray(est.bias_accel, dtype=float) / MG).tolist())
+
+
+def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, resets: int,
+                       last_reset_reason: str, feed, topic: str, silent_s: float | None,
+                       undecodable: int = 0) -> tuple[int, str, list, int]:
+    """align_node's diagnostics for an in-motion estimator (the public interface only:
+    ``status``, ``aligned``, ``heading_observable``, ``std_enu_deg``, ``rejected``,
+    ``events``, ``bias_gyro``, ``bias_accel``, ``velocity``, ``t_last``) plus what the
+    :class:`~sins_align.ros.reference.ReferenceFeed` counted.
+
+    ``silent_s``: how long the velocity topic has been silent while IMU data came (None:
+    not silent); the status is then WARN and says so. ``undecodable``: Imu messages the node
+    could not decode (counted with the rejected samples). As :func:`node_diagnostics`, WARN
+    when inputs were rejected since the last report (``rejected_seen`` = the total then).
+
+    Returns level, message, values and the rejected total now.
+    """
+    st = str(est.status)
+    level = {"waiting": WARN, "disturbed": WARN, "fault": ERROR}.get(st, OK)
+    msg = MOTION_STATE_TEXT.get(st, STATE_TEXT.get(st, st))
+    if st != "waiting" and not est.heading_observable:
+        msg += " (heading not observable yet: it needs horizontal acceleration or turns)"
+    std = est.std_enu_deg
+    bg, ba = bias_estimates(est)
+    v = np.asarray(est.velocity, dtype=float)
+    counts = feed.counts()
+    last_v = feed.last_velocity_stamp
+    age = "" if last_v is None or est.t_last is None else f"{est.t_last - last_v:.3f}"
+    values = [
+        ("state", st),
+        ("aligned", str(bool(est.aligned)).lower()),
+        ("heading_observable", str(bool(est.heading_observable)).lower()),
+        ("std_east_deg", f"{std[0]:.6f}"),
+        ("std_north_deg", f"{std[1]:.6f}"),
+        ("std_up_deg", f"{std[2]:.6f}"),
+        *((f"bias_gyro_{a}_deg_h", f"{x:.4f}") for a, x in zip("xyz", bg)),
+        *((f"bias_accel_{a}_mg", f"{x:.4f}") for a, x in zip("xyz", ba)),
+        *((f"velocity_{a}_mps", f"{x:.4f}") for a, x in zip("enu", v)),
+        ("samples_rejected", str(sum(est.rejected.values()) + undecodable)),
+        ("input_rate_hz", "" if input_rate_hz is None else f"{input_rate_hz:.2f}"),
+        ("velocity_topic", topic),
+        ("velocity_messages", str(counts["velocity_received"])),
+        ("velocity_used", str(counts["velocity_used"])),
+        ("velocity_age_s", age),
+        ("position_messages", str(counts["position_received"])),
+        ("position_used", str(counts["position_used"])),
+        ("attitude_used", str(counts["attitude_used"])),
+        ("last_refused_reason", feed.last_reason),
+    ]
+    values += [(f"refused_{k}", str(n)) for k, n in counts["refused"].items()]
+    values += [(f"rejected_by_estimator_{k}", str(n))
+               for k, n in counts["rejected_by_estimator"].items()]
+    rejected_by = dict(est.rejected)
+    if undecodable:
+        rejected_by["undecodable"] = rejected_by.get("undecodable", 0) + undecodable
+    values += [(f"rejected_{k}", str(n)) for k, n in sorted(rejected_by.items())]
+    values += [(f"event_{k}", str(n)) for k, n in sorted(est.events.items())]
+    if silent_s is not None:
+        level = max(level, WARN)
+        msg += f"; no velocity messages on {topic} for {silent_s:.0f} s"
+    rejected = sum(rejected_by.values())
+    recent = rejected - rejected_seen if rejected >= rejected_seen else rejected
+    if recent and level < WARN:
+        level = WARN
+        msg += f"; {recent} input(s) rejected"
+    values += [("resets", str(resets)), ("last_reset_reason", last_reset_reason)]
+    return level, msg, values, rejected
 
 
 def covariance_is_valid(cov9) -> bool:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from sins_align.estimators.quasi_static import AlignConfig
+from sins_align.io.velocity import VELOCITY_FRAMES, VELOCITY_TYPES
 from sins_align.core.models import MODELS
 from sins_align.core.specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
 from sins_align.sim.simulator import SWAY_PRESETS
@@ -63,6 +64,18 @@ def _scoped(scope: str, *specs: ParamSpec) -> tuple[ParamSpec, ...]:
     return tuple(replace(p, scope=scope) for p in specs)
 
 
+#: ``vehicle`` values of the in-motion estimator (ground: non-holonomic constraint).
+VEHICLES = ("ground", "air", "marine")
+#: Largest lever-arm component accepted, m.
+MAX_LEVER_ARM = 1000.0
+
+
+def _check_lever_arm(value) -> str | None:
+    if max(abs(x) for x in value) > MAX_LEVER_ARM:
+        return f"lever_arm components must be within [-{MAX_LEVER_ARM:g}, {MAX_LEVER_ARM:g}] m"
+    return None
+
+
 PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("latitude", math.nan, "Geodetic latitude of the IMU, deg (required).", -90.0, 90.0),
     ParamSpec("height", 0.0, "Height above the WGS-84 ellipsoid, m.", -10000.0, 100000.0),
@@ -80,8 +93,8 @@ PARAMS: tuple[ParamSpec, ...] = (
               -1.0, 1e6),
     ParamSpec("accel_vrw", -1.0, "Accelerometer white noise, micro-g/sqrt(Hz) (-1 = from grade).",
               -1.0, 1e6),
-    ParamSpec("velocity_noise", 0.01, "Zero-velocity measurement noise of the coarse pass, m/s "
-              "for updates 0.01 s apart (scaled to the update interval).", 1e-6, 10.0),
+    ParamSpec("coarse_velocity_noise", 0.01, "Zero-velocity measurement noise of the coarse "
+              "pass, m/s for updates 0.01 s apart (scaled to the update interval).", 1e-6, 10.0),
     ParamSpec("coarse_update_period", 0.1, "Coarse-pass update interval, s (0 = every sample, "
               "as in the paper).", 0.0, 10.0),
     ParamSpec("backtrack", True, "Re-run the buffered data in the fine pass once a first "
@@ -110,6 +123,29 @@ PARAMS: tuple[ParamSpec, ...] = (
               "accuracy is below this, deg (else level-only).", 0.0, 180.0),
     ParamSpec("disturbance_nis", 3.0, "Mean normalised innovation per axis above which the "
               "platform counts as moving (disturbed).", 0.1, 1e6, read_only=False),
+    # --- in-motion alignment with a velocity reference (issue 12) ---
+    ParamSpec("velocity_topic", "", "Velocity reference topic ('' = none: quasi-static "
+              "self-alignment; set: in-motion alignment).", allow_empty=True),
+    ParamSpec("velocity_type", "twist_with_covariance", "Message type of velocity_topic: "
+              "twist_with_covariance (geometry_msgs/TwistWithCovarianceStamped), twist "
+              "(geometry_msgs/TwistStamped, horizontal only) or odometry (nav_msgs/Odometry, "
+              "twist in child_frame_id).", choices=tuple(VELOCITY_TYPES)),
+    ParamSpec("velocity_frame", "enu", "Axis convention of the velocity message's world "
+              "frame: enu or ned (never guessed from frame_id).", choices=VELOCITY_FRAMES),
+    ParamSpec("lever_arm", [0.0, 0.0, 0.0], "Lever arm from the IMU to the GNSS antenna (or "
+              "master INS), m, in the IMU frame.", rule=_check_lever_arm),
+    ParamSpec("velocity_noise", 0.1, "Velocity reference noise 1-sigma, m/s, for messages "
+              "without a covariance.", 1e-4, 100.0),
+    ParamSpec("max_measurement_lag", 0.5, "Velocity messages may arrive this much after the "
+              "IMU passed their stamp, s (later ones are rejected).", 0.0, 60.0),
+    ParamSpec("vehicle", "air", "Vehicle kind: ground (adds the non-holonomic constraint of a "
+              "wheeled vehicle), air or marine.", choices=VEHICLES),
+    ParamSpec("attitude_matching", False, "velocity_type odometry: also match the master "
+              "INS attitude (its body axes taken as the IMU's; off: its velocity only)."),
+    ParamSpec("navsat_topic", "", "sensor_msgs/NavSatFix topic for latitude, longitude and "
+              "height ('' = none: the parameters).", allow_empty=True),
+    ParamSpec("longitude", 0.0, "Geodetic longitude, deg (in-motion alignment; a navsat_topic "
+              "overrides it).", -180.0, 180.0),
 )
 
 PARAMS_BY_NAME = {p.name: p for p in PARAMS}
@@ -179,7 +215,7 @@ SCHEMA: tuple[ParamSpec, ...] = ALIGN_NODE_PARAMS + SIM_PARAMS
 _BY_SCOPE = {(p.scope, p.name): p for p in SCHEMA}
 
 _TO_CONFIG = {
-    "height": "height_m", "model": "model", "velocity_noise": "coarse_velocity_noise",
+    "height": "height_m", "model": "model", "coarse_velocity_noise": "coarse_velocity_noise",
     "coarse_update_period": "coarse_update_period",
     "backtrack": "backtrack", "backtrack_time": "backtrack_time",
     "fine_update_period": "fine_update_period", "max_gap": "max_gap",
@@ -225,7 +261,7 @@ def check_param(name: str, value: Any, scope: str = "align") -> str | None:
             empty = " (or empty)" if spec.allow_empty else ""
             what = "angles in deg" if name.endswith("rpy") else "numbers"
             return f"{name} must be 3 finite {what}{empty}, got {list(value)}"
-        return None
+        return spec.rule(vals) if spec.rule else None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return f"{name} must be a number"
     v = float(value)
@@ -273,19 +309,107 @@ def config_from_params(values: dict[str, Any]) -> AlignConfig:
     ValueError
         With a one-line reason for the first bad value (unknown names included).
     """
+    merged = checked_values(values)
+    specs = sensor_specs(merged)
+    kw = {cfg: merged[name] for name, cfg in _TO_CONFIG.items()}
+    rate = float(merged["rate"])
+    return AlignConfig(latitude_deg=float(merged["latitude"]), specs=specs,
+                       initial_rpy_deg=_initial_rpy(merged),
+                       rate_hz=rate if rate > 0 else None, **kw)
+
+
+def checked_values(values: dict[str, Any]) -> dict[str, Any]:
+    """Every parameter value (the defaults, ``values`` on top), each checked, and the
+    combinations: a ``navsat_topic`` needs a ``velocity_topic``.
+
+    Raises
+    ------
+    ValueError
+        With a one-line reason for the first bad value (unknown names included).
+    """
     merged = defaults()
     merged.update(values)
     for name, value in merged.items():
         reason = check_param(name, value)
         if reason:
             raise ValueError(reason)
-    specs = sensor_specs(merged)
-    kw = {cfg: merged[name] for name, cfg in _TO_CONFIG.items()}
+    if merged["navsat_topic"] and not merged["velocity_topic"]:
+        raise ValueError("navsat_topic needs a velocity_topic (only the in-motion alignment "
+                         "takes positions; without one the latitude and height parameters "
+                         "are used)")
+    return merged
+
+
+def _initial_rpy(merged: dict[str, Any]) -> tuple[float, float, float] | None:
     rpy = [float(x) for x in merged["initial_rpy"]]
-    rate = float(merged["rate"])
-    return AlignConfig(latitude_deg=float(merged["latitude"]), specs=specs,
-                       initial_rpy_deg=tuple(rpy) if rpy else None,
-                       rate_hz=rate if rate > 0 else None, **kw)
+    return (rpy[0], rpy[1], rpy[2]) if rpy else None
+
+
+@dataclass(frozen=True)
+class VelocityReference:
+    """The velocity reference of an in-motion alignment, from the parameters: its topic (''
+    = none), message type (:data:`sins_align.io.velocity.VELOCITY_TYPES`), axis convention
+    (enu | ned) and the NavSatFix topic ('' = none)."""
+
+    topic: str
+    type: str
+    frame: str
+    navsat_topic: str
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.topic)
+
+
+def velocity_reference(values: dict[str, Any]) -> VelocityReference:
+    """The :class:`VelocityReference` of parameter values (checked as
+    :func:`checked_values`; raises ValueError)."""
+    m = checked_values(values)
+    return VelocityReference(m["velocity_topic"], m["velocity_type"], m["velocity_frame"],
+                             m["navsat_topic"])
+
+
+def motion_config_from_params(values: dict[str, Any]):
+    """The in-motion estimator's ``MotionConfig`` from parameter values (missing ones take
+    defaults): site (latitude, longitude, height), sensor specs, initial attitude, lever arm,
+    velocity noise, measurement lag, vehicle, attitude matching, ``max_gap`` and
+    ``max_angular_rate``. The other input checks (``specific_force_tolerance``,
+    ``units_check_window``, ``rate``), the quasi-static filter's and its aligned-flag
+    thresholds do not apply to it. Raises ValueError."""
+    from sins_align.estimators.in_motion import MotionConfig
+
+    m = checked_values(values)
+    return MotionConfig(
+        latitude_deg=float(m["latitude"]), longitude_deg=float(m["longitude"]),
+        height_m=float(m["height"]), specs=sensor_specs(m),
+        lever_arm=tuple(float(x) for x in m["lever_arm"]),
+        velocity_noise=float(m["velocity_noise"]),
+        max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
+        attitude_matching=bool(m["attitude_matching"]),
+        initial_rpy_deg=_initial_rpy(m), max_gap=float(m["max_gap"]),
+        max_angular_rate=float(m["max_angular_rate"]))
+
+
+def estimator_config(values: dict[str, Any]):
+    """The estimator's configuration for parameter values: a ``MotionConfig`` (in-motion
+    alignment) when ``velocity_topic`` is set, else the quasi-static :class:`AlignConfig`.
+    Raises ValueError with a one-line reason."""
+    if checked_values(values)["velocity_topic"]:
+        return motion_config_from_params(values)
+    return config_from_params(values)
+
+
+def make_estimator(config):
+    """A new estimator for ``config`` (from :func:`estimator_config`): the quasi-static
+    :class:`~sins_align.estimators.quasi_static.Aligner` for an :class:`AlignConfig`, the
+    in-motion ``MotionAligner`` otherwise."""
+    if isinstance(config, AlignConfig):
+        from sins_align.estimators.quasi_static import Aligner
+
+        return Aligner(config)
+    from sins_align.estimators.in_motion import MotionAligner
+
+    return MotionAligner(config)
 
 
 def node_key_matches(key: str, node_name: str = NODE_NAME, namespace: str = "/") -> bool:

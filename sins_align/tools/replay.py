@@ -72,6 +72,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import csv as csv_mod
+import itertools
 import json
 import math
 import os
@@ -87,15 +88,18 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  check_bag_dir_name, check_new_output, cli_main, deserialize,
                                  finite_or_none, need_matplotlib, one_line, open_reader,
                                  open_writer, pyplot, qos_profile, read_message_chunks,
-                                 signals_deferred)
+                                 read_messages, signals_deferred)
 from sins_align.io.cdr import (IMU_TYPE, ImuBatch, decode_imu_array, decode_imu_batch,
                                reader_imu_layout)
-from sins_align.estimators.quasi_static import AlignConfig, Aligner
+from sins_align.estimators.quasi_static import AlignConfig
 from sins_align.estimators.session import AlignmentSession
-from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_sample,
-                      node_diagnostics)
-from sins_align.ros.params import (NODE_NAME, NODE_PARAMS, check_param, config_from_params,
-                                   defaults, load_params_yaml, param_spec)
+from sins_align.ros.outputs import (StampClock, bias_estimates, euler_deg, imu_output,
+                                    imu_sample, motion_diagnostics, node_diagnostics)
+from sins_align.io.velocity import NAVSAT_TYPE, VELOCITY_FRAMES, VELOCITY_TYPES
+from sins_align.ros.params import (NODE_NAME, NODE_PARAMS, VEHICLES, VelocityReference,
+                                   check_param, defaults, estimator_config, load_params_yaml,
+                                   make_estimator, param_spec, velocity_reference)
+from sins_align.ros.reference import VELOCITY_SILENCE, ReferenceFeed
 from sins_align.core.rotation import attitude_error, dcm_from_quat, rpy_from_dcm, so3_exp, so3_log
 from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ
 
@@ -144,6 +148,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--summary-json", metavar="FILE", help="write the summary as JSON")
     p.add_argument("--truth-topic", metavar="TOPIC", help="geometry_msgs/QuaternionStamped "
                    "truth of C_b^n (e.g. /imu_sim/truth) to report the attitude error")
+    v = p.add_argument_group(
+        "in-motion alignment", "a velocity reference in the bag makes the replay run the "
+        "in-motion estimator, as align_node with velocity_topic set (these flags override the "
+        "same parameters of --params)")
+    v.add_argument("--velocity-topic", metavar="TOPIC", help="velocity reference topic in the "
+                   "bag (e.g. /gnss/fix_velocity)")
+    v.add_argument("--velocity-type", choices=tuple(VELOCITY_TYPES),
+                   help="its message type (default twist_with_covariance)")
+    v.add_argument("--velocity-frame", choices=VELOCITY_FRAMES,
+                   help="axis convention of its world frame (default enu)")
+    v.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="IMU to antenna lever arm in the IMU frame, m")
+    v.add_argument("--vehicle", choices=VEHICLES, help="vehicle kind (default air; ground "
+                   "adds the non-holonomic constraint)")
+    v.add_argument("--navsat-topic", metavar="TOPIC", help="sensor_msgs/NavSatFix topic in "
+                   "the bag for latitude, longitude and height")
     p.add_argument("--quiet", action="store_true", help="no summary on stdout")
     p.add_argument("--force", action="store_true", help="replace outputs that exist (a previous "
                    "bag, CSV, plot or summary; each once the new one is complete)")
@@ -183,20 +203,47 @@ def params_from_args(args) -> tuple[dict[str, Any], dict[str, Any]]:
             raise CliError(f"--{flag} must be a finite number, got {v}")
     if args.initial_rpy is not None:
         values["initial_rpy"] = [float(a) for a in args.initial_rpy]
+    for flag, name in (("velocity_topic", "velocity_topic"), ("velocity_type", "velocity_type"),
+                       ("velocity_frame", "velocity_frame"), ("vehicle", "vehicle"),
+                       ("navsat_topic", "navsat_topic")):
+        v = getattr(args, flag)
+        if v is not None:
+            values[name] = v
+    if args.lever_arm is not None:
+        if not all(math.isfinite(x) for x in args.lever_arm):
+            raise CliError(f"--lever-arm must be finite numbers, got "
+                           f"{' '.join(map(str, args.lever_arm))}")
+        values["lever_arm"] = [float(x) for x in args.lever_arm]
     reason = check_param("euler_rate", node_only.get("euler_rate", EULER_RATE), "node")
     if reason:
         raise CliError(f"bad parameters: {reason}")
     return values, node_only
 
 
-def config_or_error(values: dict[str, Any]) -> AlignConfig:
+def config_or_error(values: dict[str, Any]):
+    """The estimator's configuration (an AlignConfig, or a MotionConfig when a velocity
+    topic is set), or a CliError naming the bad parameter."""
     lat = values.get("latitude")
     if lat is None or (isinstance(lat, float) and math.isnan(lat)):
         raise CliError("latitude is required: pass --latitude DEG or set latitude in --params")
     try:
-        return config_from_params(values)
+        return estimator_config(values)
     except ValueError as e:
         raise CliError(f"bad parameters: {one_line(e)}") from None
+
+
+def reference_or_error(values: dict[str, Any]) -> VelocityReference:
+    """The velocity reference of the parameters, its topic resolved at root as the node's
+    relative name would be (``gnss/fix_velocity`` -> ``/gnss/fix_velocity``)."""
+    try:
+        ref = velocity_reference(values)
+    except ValueError as e:
+        raise CliError(f"bad parameters: {one_line(e)}") from None
+    return VelocityReference(_at_root(ref.topic), ref.type, ref.frame, _at_root(ref.navsat_topic))
+
+
+def _at_root(topic: str) -> str:
+    return topic if not topic or topic.startswith("/") else "/" + topic
 
 
 def merged_params(values: dict[str, Any]) -> dict[str, Any]:
@@ -331,15 +378,27 @@ class ReplaySession:
     messages decoded in bulk.
     """
 
-    def __init__(self, config: AlignConfig, writer=None, csv_file=None, with_truth=False,
-                 keep_plot=False, euler_period_ns: int = EULER_PERIOD_NS, block: bool = False):
+    def __init__(self, config, writer=None, csv_file=None, with_truth=False,
+                 keep_plot=False, euler_period_ns: int = EULER_PERIOD_NS, block: bool = False,
+                 reference: VelocityReference | None = None):
         if block and (writer is not None or with_truth):
             raise ValueError("the block path writes no bag and takes no truth")
         self.config = config
         self.block = block
-        self.al = Aligner(config)
+        self.al = make_estimator(config)
+        #: in-motion alignment (a velocity reference): the estimator's extras are read
+        #: through its public interface only
+        self.motion = reference is not None and reference.enabled
+        self.reference = reference
         self.session = AlignmentSession(self.al, record_flag_changes=block)
         self.clock = StampClock()
+        self.feed = ReferenceFeed(self.session, reference, self.clock) if self.motion else None
+        #: reference messages not fed yet: (header stamp ns, 'velocity' | 'navsat', msg),
+        #: in stamp order (:meth:`add_references`)
+        self._refs: deque = deque()
+        self._last_velocity_ns: int | None = None
+        #: the estimator estimates its biases (the in-motion one): reported in the summary
+        self._has_biases = hasattr(self.al, "bias_gyro")
         self.msgs = Messages()
         self.writer = writer
         self.with_truth = with_truth
@@ -383,6 +442,25 @@ class ReplaySession:
                                                 offered_qos_profiles=[qos_profile()])
 
     # -- input ---------------------------------------------------------------------------
+    def add_references(self, items) -> None:
+        """Velocity-reference and NavSatFix messages ``[(header stamp ns, 'velocity' |
+        'navsat', msg)]`` in stamp order. Each is fed to the estimator before the first IMU
+        sample whose stamp is not earlier than its own (a merge by header stamp: what the node
+        does when the messages come in stamp order); those after the last sample at
+        :meth:`finish`."""
+        self._refs.extend(items)
+
+    def _feed_refs(self, until_ns: float) -> None:
+        """Feed the reference messages stamped at or before ``until_ns``."""
+        refs, feed = self._refs, self.feed
+        while refs and refs[0][0] <= until_ns:
+            ns, kind, msg = refs.popleft()
+            if kind == "velocity":
+                self._last_velocity_ns = ns
+                feed.on_velocity(msg)
+            else:
+                feed.on_navsat(msg)
+
     def on_imu(self, msg):
         """One sensor_msgs/Imu message (rosbags object, ROS 1 or ROS 2 layout).
 
@@ -392,8 +470,10 @@ class ReplaySession:
         published when it changes.
         """
         al = self.al
-        accepted = self.session.feed(*imu_sample(msg, self.clock))
         ns = _stamp_ns(msg)
+        if self._refs:
+            self._feed_refs(ns)
+        accepted = self.session.feed(*imu_sample(msg, self.clock))
         self.samples += 1
         if self.first_ns is None:
             self.first_ns = ns
@@ -438,11 +518,13 @@ class ReplaySession:
         if n == 0:
             return
         sec, nsec = batch.sec, batch.nanosec
+        ns = sec * NS + nsec
+        if self._refs:                  # those before the first sample set the clock first
+            self._feed_refs(int(ns[0]))
         if self.clock.epoch is None:
             self.clock(int(sec[0]), int(nsec[0]))
         # StampClock.__call__, element-wise: float(sec - epoch) + nanosec * 1e-9
         t = (sec - self.clock.epoch).astype(np.float64) + nsec.astype(np.float64) * 1e-9
-        ns = sec * NS + nsec
         w, f = batch.gyro, batch.accel
         if self.first_ns is None:
             self.first_ns = int(ns[0])
@@ -457,8 +539,16 @@ class ReplaySession:
             for i in range(1, n):
                 if frames[i] != frames[i - 1]:
                     cut[i] = True
+        reach = None
+        if self._refs:      # each before the first sample whose stamp is not earlier
+            reach = np.maximum.accumulate(ns)           # (as on_imu, stamps out of order too)
+            last = int(reach[-1])
+            stamps = [r[0] for r in itertools.takewhile(lambda r: r[0] <= last, self._refs)]
+            cut[np.searchsorted(reach, np.array(stamps, dtype=np.int64), side="left")] = True
         bounds = np.flatnonzero(cut).tolist()
         for a, b in zip(bounds, bounds[1:]):
+            if reach is not None:
+                self._feed_refs(int(reach[a]))
             before = self.al.aligned
             if self.session.feed_block(t[a:b], w[a:b], f[a:b]):
                 self.last_frame_id = frames[a]
@@ -521,8 +611,18 @@ class ReplaySession:
         if self._diag_prev is not None and ns > self._diag_prev[0]:
             rate = (self.samples - self._diag_prev[1]) / ((ns - self._diag_prev[0]) / NS)
         self._diag_prev = (ns, self.samples)
-        level, text, values, self._rejected_seen = node_diagnostics(
-            al, rate, self._rejected_seen, self.session.resets, self.session.last_reset_reason)
+        if self.motion:
+            # the node's silence check in data time: no velocity stamp for VELOCITY_SILENCE s
+            last = max(self.first_ns, self._last_velocity_ns or self.first_ns)
+            silent = (ns - last) / NS
+            level, text, values, self._rejected_seen = motion_diagnostics(
+                al, rate, self._rejected_seen, self.session.resets,
+                self.session.last_reset_reason, self.feed, self.reference.topic,
+                silent if silent > VELOCITY_SILENCE else None)
+        else:
+            level, text, values, self._rejected_seen = node_diagnostics(
+                al, rate, self._rejected_seen, self.session.resets,
+                self.session.last_reset_reason)
         frame = self.last_header[2] if self.last_header else ""
         sec, nsec = divmod(ns, NS)
         arr = m.diagnostic_array(m.header(sec, nsec, frame),
@@ -573,44 +673,66 @@ class ReplaySession:
 
     # -- end ---------------------------------------------------------------------------------
     def finish(self):
-        """Final sample row (if not on a tick) and the pending truth matches."""
+        """Final sample row (if not on a tick) and the pending truth matches; then the
+        reference messages stamped after the last sample (the node receives them too)."""
         if self.samples == 0:
             return
         if self._last_row_ns != self.last_ns:
             self._row(self.last_ns, force=True)
         if self.truth is not None:
             self._take(self.truth.resolve(self.last_ns, final=True))
+        if self._refs:
+            self._feed_refs(math.inf)
 
     def summary(self, config_echo: dict[str, Any]) -> dict[str, Any]:
         al = self.al
         s = al.summary()
+        if self.motion:
+            # the in-motion estimator's public interface; what it does not report is None
+            tta = s.get("time_to_aligned_s", next(
+                (t for t, a in self.aligned_changes if a), None))
+            used = s.get("samples_used")
+            stage = s.get("stage")
+        else:
+            tta, used, stage = al.time_to_aligned, al.samples_used, al.stage
         out: dict[str, Any] = {
             "samples": self.samples,
-            "samples_used": al.samples_used,
+            "samples_used": used,
             "rejected": dict(al.rejected),
             "events": dict(al.events),
             "duration_s": (self.last_ns - self.first_ns) / NS,
-            "aligned": al.aligned,
-            "time_to_aligned_s": al.time_to_aligned,
+            "aligned": bool(al.aligned),
+            "time_to_aligned_s": tta,
             "status": al.status,
             "resets": self.session.resets,
-            "stage": al.stage,
-            "heading_observable": al.heading_observable,
+            "stage": stage,
+            "heading_observable": bool(al.heading_observable),
             "aligned_changes": [{"t_s": t, "aligned": a} for t, a in self.aligned_changes],
             "final": {
                 "stamp_s": self.last_ns / NS,
                 "frame_id": self.last_frame_id,
-                "orientation_xyzw": s["orientation_xyzw"],
-                "rpy_deg": s["rpy_deg"],
-                "heading_deg": s["heading_deg"],
-                "std_enu_deg": s["std_enu_deg"],
-                "covariance_enu_rad2": al.covariance.reshape(-1).tolist(),
+                "orientation_xyzw": np.asarray(al.quaternion, dtype=float).tolist(),
+                "rpy_deg": np.asarray(al.rpy_deg, dtype=float).tolist(),
+                "heading_deg": float(al.heading_deg),
+                "std_enu_deg": np.asarray(al.std_enu_deg, dtype=float).tolist(),
+                "covariance_enu_rad2": np.asarray(al.covariance).reshape(-1).tolist(),
+                "heading_observable": bool(al.heading_observable),
             },
             "config": config_echo,
-            "limit_std_enu_deg": s["limit_std_enu_deg"],
-            "fine_velocity_noise_mps": s["fine_velocity_noise_mps"],
-            "nis": s["nis"],
+            "limit_std_enu_deg": s.get("limit_std_enu_deg"),
+            "fine_velocity_noise_mps": s.get("fine_velocity_noise_mps"),
+            "nis": s.get("nis"),
         }
+        if self._has_biases:
+            bg, ba = bias_estimates(al)
+            out["final"]["bias_gyro_dph"] = bg
+            out["final"]["bias_accel_mg"] = ba
+        if self.motion:
+            ref = self.reference
+            out["velocity_reference"] = {
+                "topic": ref.topic, "type": ref.type, "frame": ref.frame,
+                "navsat_topic": ref.navsat_topic or None, **self.feed.counts()}
+            out["final"]["velocity_enu_mps"] = np.asarray(al.velocity, dtype=float).tolist()
         if self.truth is not None:
             fin = out["final"]
             fin["error_enu_deg"] = None if self.final_error is None else self.final_error.tolist()
@@ -659,6 +781,40 @@ def select_truth_connections(reader, topic: str, path) -> list:
     if info.msgtype != TRUTH_TYPE:
         raise CliError(f"truth topic {topic} in {path} is {info.msgtype}, not {TRUTH_TYPE}")
     return [c for c in reader.connections if c.topic == topic]
+
+
+def _reference_connections(reader, topic: str, msgtype: str, what: str, flag: str, path):
+    info = reader.topics.get(topic)
+    if info is None:
+        listing = ", ".join(f"{t} ({i.msgtype})" for t, i in sorted(reader.topics.items()))
+        raise CliError(f"{what} topic {topic} not in {path} (topics: {listing or 'none'}; "
+                       f"choose it with {flag})")
+    if info.msgtype != msgtype:
+        raise CliError(f"{what} topic {topic} in {path} is {info.msgtype}, not {msgtype}"
+                       + (" (set --velocity-type)" if what == "velocity" else ""))
+    conns = [c for c in reader.connections if c.topic == topic]
+    if sum(c.msgcount for c in conns) == 0 and info.msgcount == 0:
+        raise CliError(f"{what} topic {topic} in {path} has no messages")
+    return conns
+
+
+def read_references(reader, reference: VelocityReference, path) -> list:
+    """The velocity-reference (and NavSatFix) messages of the bag as ``[(header stamp ns,
+    'velocity' | 'navsat', msg)]`` sorted by stamp (a stable sort: bag order at equal stamps,
+    velocity before position). They are held in memory: a few per second of data.
+
+    Raises CliError for a topic that is missing, of another type or empty."""
+    want = [(reference.topic, VELOCITY_TYPES[reference.type], "velocity", "--velocity-topic")]
+    if reference.navsat_topic:
+        want.append((reference.navsat_topic, NAVSAT_TYPE, "navsat", "--navsat-topic"))
+    items = []
+    for topic, msgtype, kind, flag in want:
+        conns = _reference_connections(reader, topic, msgtype, kind, flag, path)
+        for conn, log_ns, raw in read_messages(reader, conns, path):
+            msg = deserialize(reader, raw, msgtype, path, log_ns)
+            items.append((_stamp_ns(msg), kind, msg))
+    items.sort(key=lambda it: it[0])
+    return items
 
 
 #: Messages read and decoded at once (bounds the memory of the bulk decoding); also the
@@ -734,30 +890,39 @@ def feed_blocks(batches, size: int):
         yield ImuSamples.join(pending)
 
 
-def config_echo(config: AlignConfig, params: dict[str, Any]) -> dict[str, Any]:
+def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
+    """The estimator's configuration in the summary: the quasi-static AlignConfig's, or the
+    in-motion MotionConfig's (model and backtrack None; site, lever arm, noise, vehicle)."""
     sp = config.specs
-    return {
+    quasi_static = isinstance(config, AlignConfig)
+    out = {
         "latitude_deg": config.latitude_deg,
         "height_m": config.height_m,
-        "model": config.model,
+        "model": config.model if quasi_static else None,
         "grade": params.get("grade"),
         "specs": {"gyro_bias_deg_h": sp.gyro_bias / DPH,
                   "gyro_arw_deg_sqrt_h": sp.gyro_arw / DPSH,
                   "accel_bias_ug": sp.accel_bias / UG,
                   "accel_vrw_ug_sqrt_hz": sp.accel_vrw / UG_PSHZ},
         "initial_rpy_deg": None if config.initial_rpy_deg is None else list(config.initial_rpy_deg),
-        "backtrack": config.backtrack,
-        "backtrack_time_s": config.backtrack_time,
+        "backtrack": config.backtrack if quasi_static else None,
+        "backtrack_time_s": config.backtrack_time if quasi_static else None,
         "params": params,
     }
+    if not quasi_static:
+        out.update(estimator="in_motion", longitude_deg=config.longitude_deg,
+                   lever_arm_m=list(config.lever_arm), velocity_noise_mps=config.velocity_noise,
+                   max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle)
+    return out
 
 
-def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = None,
+def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
            truth_topic: str | None = None, output: Path | None = None, csv_path: Path | None = None,
            keep_plot: bool = False, progress: bool | None = None,
            params: dict[str, Any] | None = None,
            euler_period_ns: int = EULER_PERIOD_NS, per_sample: bool = False,
-           fast_mcap: bool = True) -> tuple[dict[str, Any], ReplaySession]:
+           fast_mcap: bool = True, reference: VelocityReference | None = None,
+           ) -> tuple[dict[str, Any], ReplaySession]:
     """Replay ``bag`` and write the optional outputs to the given (temporary) paths.
 
     Two paths, same results: with an ``output`` bag or a ``truth_topic`` (or ``per_sample``,
@@ -766,6 +931,11 @@ def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = N
     messages are read in blocks (:class:`~sins_align.io.bagio.TopicBlocks`: MCAP parsed with
     numpy, ``fast_mcap=False`` to read with rosbags only), decoded in bulk and fed to
     :meth:`ReplaySession.on_imu_block`.
+
+    With a ``reference`` whose topic is set (``config`` is then a MotionConfig) the velocity
+    topic (and the NavSatFix topic) are read first, sorted by header stamp, and merged with
+    the IMU samples by header stamp (:meth:`ReplaySession.add_references`); a missing topic
+    is a CliError.
 
     Returns the summary dict and the session (for the plot). Raises CliError on bad input.
     """
@@ -776,6 +946,8 @@ def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = N
     try:
         topic, conns = select_imu_connections(reader, topic, bag)
         truth_conns = select_truth_connections(reader, truth_topic, bag) if truth_topic else []
+        motion = reference is not None and reference.enabled
+        refs = read_references(reader, reference, bag) if motion else []
         layout = reader_imu_layout(reader)
         block = (not per_sample and output is None and not truth_conns
                  and layout is not None)
@@ -785,7 +957,9 @@ def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = N
             csv_file = open(csv_path, "w", newline="", encoding="utf-8")
         session = ReplaySession(config, writer=writer, csv_file=csv_file,
                                 with_truth=bool(truth_conns), keep_plot=keep_plot,
-                                euler_period_ns=euler_period_ns, block=block)
+                                euler_period_ns=euler_period_ns, block=block,
+                                reference=reference if motion else None)
+        session.add_references(refs)
         total = sum(c.msgcount for c in conns + truth_conns)
         bar = Progress(total, PROG, enabled=progress)
         n = 0
@@ -843,6 +1017,8 @@ def replay(bag: str | os.PathLike, config: AlignConfig, *, topic: str | None = N
     summ = session.summary(config_echo(config, params))
     summ = {"bag": str(bag), "topic": topic, "truth_topic": truth_topic, **summ,
             "wall_time_s": wall, "messages_per_s": n / wall if wall > 0 else None}
+    if motion:
+        summ["messages_per_s"] = (n + len(refs)) / wall if wall > 0 else None
     return finite_or_none(summ), session
 
 
@@ -865,7 +1041,7 @@ def write_plot(path: Path, session: ReplaySession, summary: dict[str, Any]):
     ax.set_ylabel("deg")
     ax.legend(loc="best")
     ax = axes[2]
-    lim = summary["limit_std_enu_deg"]
+    lim = summary["limit_std_enu_deg"] or (None, None, None)
     for i, (name, col) in enumerate((("E", "C0"), ("N", "C1"), ("U", "C2"))):
         ax.semilogy(t, rows[:, 5 + i], color=col, label=f"std {name}")
         if lim[i] is not None:
@@ -907,19 +1083,41 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
     def f3(v, fmt="{:.4f}"):
         return " ".join("-" if x is None else fmt.format(x) for x in v)
 
+    ref = s.get("velocity_reference")
+    if ref is None:
+        estimator = f"model {c['model']}"
+    else:
+        estimator = f"in motion, vehicle {c['vehicle']}"
+    used = "" if s["samples_used"] is None else f" ({s['samples_used']} used)"
+    stage = "" if s["stage"] is None or ref is not None else f" ({s['stage']} pass)"
     lines = [
         f"replay {s['bag']}  topic {s['topic']}",
         f"  config    latitude {c['latitude_deg']:.6f} deg, height {c['height_m']:g} m, "
-        f"model {c['model']}, grade {c['grade']}",
-        f"  samples   {s['samples']} ({s['samples_used']} used), rejected: {rej}",
-        f"  duration  {s['duration_s']:.3f} s, status {s['status']} ({s['stage']} pass), "
+        f"{estimator}, grade {c['grade']}",
+        f"  samples   {s['samples']}{used}, rejected: {rej}",
+    ]
+    if ref is not None:
+        refused = sum(ref["refused"].values()) + sum(ref["rejected_by_estimator"].values())
+        lines.append(f"  velocity  {ref['topic']} ({ref['type']}, {ref['frame']}): "
+                     f"{ref['velocity_received']} messages, {ref['velocity_used']} used, "
+                     f"{refused} refused or rejected"
+                     + (f"; position {ref['navsat_topic']}: {ref['position_used']} of "
+                        f"{ref['position_received']} used" if ref["navsat_topic"] else ""))
+    lines += [
+        f"  duration  {s['duration_s']:.3f} s, status {s['status']}{stage}, "
         + (f"aligned after {s['time_to_aligned_s']:.2f} s" if s["time_to_aligned_s"] is not None
            else "never aligned") + ("" if s["aligned"] else "; not aligned at the end"),
         f"  final     roll {fin['rpy_deg'][0]:.4f}  pitch {fin['rpy_deg'][1]:.4f}  "
         f"yaw {fin['rpy_deg'][2]:.4f} deg (REP-103, ENU); heading {fin['heading_deg']:.4f} deg "
         f"true",
-        f"  std E N U {f3(fin['std_enu_deg'])} deg   limit {f3(s['limit_std_enu_deg'])} deg",
+        f"  std E N U {f3(fin['std_enu_deg'])} deg"
+        + ("" if s["limit_std_enu_deg"] is None else
+           f"   limit {f3(s['limit_std_enu_deg'])} deg"),
     ]
+    if "bias_gyro_dph" in fin:
+        lines.append(f"  biases    gyro {f3(fin['bias_gyro_dph'], '{:.3f}')} deg/h, accel "
+                     f"{f3(fin['bias_accel_mg'], '{:.3f}')} mg; heading "
+                     + ("observable" if fin["heading_observable"] else "not observable yet"))
     if "error_enu_deg" in fin:
         err = fin["error_enu_deg"]
         if err is None:
@@ -953,6 +1151,7 @@ def run(argv: Sequence[str] | None = None) -> int:
         raise CliError("an output path is the input bag")
     values, node_only = params_from_args(args)
     config = config_or_error(values)
+    reference = reference_or_error(values)
     params = merged_params(values)
     euler_rate = float(node_only.get("euler_rate", EULER_RATE))
 
@@ -965,7 +1164,7 @@ def run(argv: Sequence[str] | None = None) -> int:
             output=atomic["bag"].tmp if "bag" in atomic else None,
             csv_path=atomic["csv"].tmp if "csv" in atomic else None,
             keep_plot="plot" in atomic, params=params,
-            euler_period_ns=int(round(1e9 / euler_rate)))
+            euler_period_ns=int(round(1e9 / euler_rate)), reference=reference)
         if "plot" in atomic:
             write_plot(atomic["plot"].tmp, session, summary)
         if "summary" in atomic:

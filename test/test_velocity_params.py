@@ -1,0 +1,195 @@
+"""The in-motion parameters (issue 12) and replay's velocity-reference flags, without DDS.
+
+- ``velocity_topic`` picks the estimator: '' = the quasi-static Aligner (as before), set = the
+  in-motion MotionAligner, built from the parameters by one function for node and replay;
+- every new parameter is checked as the existing ones are (type, choices, range, list);
+- ``velocity_noise`` is the velocity reference's noise now; the coarse pass's zero-velocity
+  noise is ``coarse_velocity_noise`` (AlignConfig's name);
+- replay: bad flags and a velocity topic that is missing, of another type or empty end in one
+  line on stderr, a non-zero exit and no output.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from cli_helpers import cli, listing
+from sins_align.estimators.in_motion import MotionAligner, MotionConfig
+from sins_align.estimators.quasi_static import AlignConfig, Aligner
+from sins_align.ros import params as P
+from sins_align.tools import replay, simulate
+
+BASE = {"latitude": 34.0}
+
+
+# ---------------------------------------------------------------- the schema
+@pytest.mark.parametrize("name, value, words", [
+    ("velocity_topic", 3.0, "velocity_topic must be a string"),
+    ("velocity_type", "imu", "velocity_type must be one of twist_with_covariance, twist, "
+                             "odometry, got 'imu'"),
+    ("velocity_frame", "nwu", "velocity_frame must be one of enu, ned, got 'nwu'"),
+    ("velocity_frame", "", "velocity_frame must be a non-empty string"),
+    ("lever_arm", [0.1, 0.2], "lever_arm must be 3 finite numbers, got [0.1, 0.2]"),
+    ("lever_arm", [0.1, math.nan, 0.0], "lever_arm must be 3 finite numbers"),
+    ("lever_arm", [], "lever_arm must be 3 finite numbers, got []"),
+    ("lever_arm", [0.0, 0.0, -1500.0], "lever_arm components must be within [-1000, 1000] m"),
+    ("velocity_noise", 0.0, "velocity_noise must be within [0.0001, 100], got 0"),
+    ("max_measurement_lag", -0.1, "max_measurement_lag must be within [0, 60]"),
+    ("vehicle", "car", "vehicle must be one of ground, air, marine, got 'car'"),
+    ("navsat_topic", True, "navsat_topic must be a string"),
+    ("longitude", 181.0, "longitude must be within [-180, 180], got 181"),
+    ("attitude_matching", 1.0, "attitude_matching must be true or false"),
+    ("coarse_velocity_noise", 20.0, "coarse_velocity_noise must be within [1e-06, 10]"),
+])
+def test_new_parameters_are_checked_with_a_reason(name, value, words):
+    reason = P.check_param(name, value)
+    assert reason is not None and words in reason, reason
+    with pytest.raises(ValueError, match=None) as e:
+        P.estimator_config({**BASE, "velocity_topic": "gnss/fix_velocity", name: value}
+                           if name != "velocity_topic" else {**BASE, name: value})
+    assert words in str(e.value)
+
+
+def test_empty_topics_are_allowed_and_mean_none():
+    for name in ("velocity_topic", "navsat_topic"):
+        assert P.check_param(name, "") is None
+        assert P.param_spec(name).default == ""
+    assert P.check_param("velocity_topic", "/gnss/fix_velocity") is None
+
+
+def test_without_a_velocity_topic_the_quasi_static_aligner_is_built_as_before():
+    cfg = P.estimator_config(BASE)
+    assert isinstance(cfg, AlignConfig) and cfg == P.config_from_params(BASE)
+    assert isinstance(P.make_estimator(cfg), Aligner)
+    assert not P.velocity_reference(BASE).enabled
+
+
+def test_coarse_velocity_noise_is_the_renamed_coarse_parameter():
+    """velocity_noise no longer touches the quasi-static filter; coarse_velocity_noise does."""
+    cfg = P.config_from_params({**BASE, "coarse_velocity_noise": 0.003, "velocity_noise": 2.0})
+    assert cfg.coarse_velocity_noise == 0.003
+    assert P.config_from_params(BASE).coarse_velocity_noise == 0.01
+    assert P.param_spec("velocity_noise").default == 0.1
+
+
+def test_a_velocity_topic_builds_the_in_motion_estimator_from_the_parameters():
+    values = {**BASE, "velocity_topic": "gnss/fix_velocity", "velocity_type": "odometry",
+              "velocity_frame": "ned", "lever_arm": [0.5, -0.2, 1.25], "velocity_noise": 0.3,
+              "max_measurement_lag": 0.8, "vehicle": "ground", "longitude": 108.5,
+              "height": 412.0, "grade": "consumer", "initial_rpy": [1.0, 2.0, 30.0],
+              "max_gap": 2.0, "max_angular_rate": 5.0, "attitude_matching": True}
+    cfg = P.estimator_config(values)
+    assert isinstance(cfg, MotionConfig)
+    assert (cfg.latitude_deg, cfg.longitude_deg, cfg.height_m) == (34.0, 108.5, 412.0)
+    assert cfg.lever_arm == (0.5, -0.2, 1.25)
+    assert (cfg.velocity_noise, cfg.max_measurement_lag, cfg.vehicle) == (0.3, 0.8, "ground")
+    assert cfg.initial_rpy_deg == (1.0, 2.0, 30.0)
+    assert (cfg.max_gap, cfg.max_angular_rate, cfg.attitude_matching) == (2.0, 5.0, True)
+    assert cfg.specs == P.sensor_specs(P.checked_values(values))
+    assert isinstance(P.make_estimator(cfg), MotionAligner)
+    ref = P.velocity_reference(values)
+    assert ref == P.VelocityReference("gnss/fix_velocity", "odometry", "ned", "")
+    assert ref.enabled
+
+
+def test_a_navsat_topic_needs_a_velocity_topic():
+    with pytest.raises(ValueError, match="navsat_topic needs a velocity_topic"):
+        P.estimator_config({**BASE, "navsat_topic": "gnss/fix"})
+    ref = P.velocity_reference({**BASE, "velocity_topic": "v", "navsat_topic": "gnss/fix"})
+    assert ref.navsat_topic == "gnss/fix"
+
+
+def test_the_shipped_yaml_with_a_velocity_topic_is_a_valid_motion_config():
+    import sins_align
+
+    path = Path(sins_align.__file__).parent / "config" / "align.yaml"
+    values = {k: v for k, v in P.load_params_yaml(path).items()
+              if P.param_spec(k, "align") is not None}
+    assert values["velocity_topic"] == "" and values["coarse_velocity_noise"] == 0.01
+    assert isinstance(P.estimator_config({**values, "velocity_topic": "gnss/fix_velocity"}),
+                      MotionConfig)
+
+
+# ---------------------------------------------------------------- replay's flags
+@pytest.fixture(scope="module")
+def imu_bag(tmp_path_factory):
+    """20 s of a static IMU: no velocity topic in it."""
+    bag = tmp_path_factory.mktemp("vel_params") / "imu_only"
+    assert simulate.main(["--duration", "20", "--rate", "50", str(bag)]) == 0
+    return bag
+
+
+def _refused(rc, err, words, out_dir: Path, code: int = 2):
+    lines = err.strip().splitlines()
+    assert rc == code, err
+    assert len(lines) == 1 and lines[0].startswith("replay: error: "), err
+    assert words in lines[0], lines[0]
+    assert listing(out_dir) == set(), listing(out_dir)          # nothing written, no .partial
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--velocity-type", "imu"], "argument --velocity-type: invalid choice: 'imu'"),
+    (["--velocity-frame", "nwu"], "argument --velocity-frame: invalid choice: 'nwu'"),
+    (["--vehicle", "car"], "argument --vehicle: invalid choice: 'car'"),
+    (["--lever-arm", "1", "2"], "argument --lever-arm: expected 3 arguments"),
+], ids=["type", "frame", "vehicle", "lever-arm-2"])
+def test_replay_velocity_flags_are_parsed_by_argparse(args, words, imu_bag, tmp_path, capsys):
+    """Choices and counts: argparse's usage and one error line, exit status 2, as the other
+    flags of the tools."""
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(SystemExit) as e:
+        replay.main([str(imu_bag), "--latitude", "34", *args,
+                     "--summary-json", str(out / "s.json")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2
+    assert err.strip().splitlines()[-1].startswith(f"replay: error: {words}"), err
+    assert listing(out) == set()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--lever-arm", "1", "nan", "0"], "--lever-arm must be finite numbers, got 1.0 nan 0.0"),
+    (["--lever-arm", "0", "0", "2000"], "lever_arm components must be within [-1000, 1000] m"),
+    (["--navsat-topic", "/gnss/fix"], "navsat_topic needs a velocity_topic"),
+    (["--velocity-topic", "/gnss/fix_velocity"], "velocity topic /gnss/fix_velocity not in"),
+    (["--velocity-topic", "/imu/data_raw"], "velocity topic /imu/data_raw in"),
+    (["--velocity-topic", "/imu/data_raw", "--velocity-type", "odometry"],
+     "is sensor_msgs/msg/Imu, not nav_msgs/msg/Odometry (set --velocity-type)"),
+], ids=["lever-arm-nan", "lever-arm-far", "navsat-alone", "missing-topic", "wrong-type",
+        "wrong-type-odometry"])
+def test_replay_refuses_bad_velocity_flags_in_one_line(args, words, imu_bag, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    rc, _, err = cli(replay, [imu_bag, "--latitude", "34", *args,
+                              "--summary-json", out / "s.json", "--csv", out / "s.csv"], capsys)
+    _refused(rc, err, words, out)
+
+
+def test_a_missing_velocity_topic_names_the_bag_topics(imu_bag, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    rc, _, err = cli(replay, [imu_bag, "--latitude", "34", "--velocity-topic", "/vel",
+                              "--output", out / "bag"], capsys)
+    _refused(rc, err, "(topics: /imu/data_raw (sensor_msgs/msg/Imu), /imu_sim/truth "
+             "(geometry_msgs/msg/QuaternionStamped); choose it with --velocity-topic)", out)
+
+
+def test_a_relative_velocity_topic_in_the_params_file_is_resolved_at_root(imu_bag, tmp_path,
+                                                                          capsys):
+    """The node's relative name gnss/fix_velocity is /gnss/fix_velocity in a bag recorded at
+    root; replay looks for that, and --velocity-topic '' turns the reference off again."""
+    y = tmp_path / "p.yaml"
+    y.write_text("/**:\n  ros__parameters:\n    latitude: 34.0\n"
+                 "    velocity_topic: gnss/fix_velocity\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    rc, _, err = cli(replay, [imu_bag, "--params", y, "--summary-json", out / "s.json"], capsys)
+    _refused(rc, err, "velocity topic /gnss/fix_velocity not in", out)
+    rc, _, err = cli(replay, [imu_bag, "--params", y, "--velocity-topic", "",
+                              "--summary-json", out / "s.json", "--quiet"], capsys)
+    assert rc == 0, err
+    s = json.loads((out / "s.json").read_text())
+    assert "velocity_reference" not in s and s["config"]["model"] == "constant"
