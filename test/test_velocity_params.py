@@ -87,7 +87,10 @@ def test_a_velocity_topic_builds_the_in_motion_estimator_from_the_parameters():
     assert cfg.lever_arm == (0.5, -0.2, 1.25)
     assert (cfg.velocity_noise, cfg.max_measurement_lag, cfg.vehicle) == (0.3, 0.8, "ground")
     assert cfg.initial_rpy_deg == (1.0, 2.0, 30.0)
-    assert (cfg.max_gap, cfg.max_angular_rate, cfg.attitude_matching) == (2.0, 5.0, True)
+    # in motion: max_gap at most 1 s, max_angular_rate at least 10 rad/s
+    assert (cfg.max_gap, cfg.max_angular_rate, cfg.attitude_matching) == (1.0, 10.0, True)
+    tight = P.estimator_config({**values, "max_gap": 0.3, "max_angular_rate": 20.0})
+    assert (tight.max_gap, tight.max_angular_rate) == (0.3, 20.0)
     assert cfg.specs == P.sensor_specs(P.checked_values(values))
     assert isinstance(P.make_estimator(cfg), MotionAligner)
     ref = P.velocity_reference(values)

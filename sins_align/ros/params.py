@@ -369,11 +369,18 @@ def velocity_reference(values: dict[str, Any]) -> VelocityReference:
                              m["navsat_topic"])
 
 
+#: s — in motion, IMU gaps above this restart the alignment whatever max_gap says
+MOTION_MAX_GAP = 1.0
+#: rad/s — in motion, max_angular_rate is at least this (a car yaws at 0.5, a UAV at 3)
+MOTION_MIN_RATE_LIMIT = 10.0
+
+
 def motion_config_from_params(values: dict[str, Any]):
     """The in-motion estimator's ``MotionConfig`` from parameter values (missing ones take
     defaults): site (latitude, longitude, height), sensor specs, initial attitude, lever arm,
-    velocity noise, measurement lag, vehicle, attitude matching, ``max_gap`` and
-    ``max_angular_rate``. The other input checks (``specific_force_tolerance``,
+    velocity noise, measurement lag, vehicle, attitude matching, ``max_gap`` (at most
+    :data:`MOTION_MAX_GAP`) and ``max_angular_rate`` (at least
+    :data:`MOTION_MIN_RATE_LIMIT`). The other input checks (``specific_force_tolerance``,
     ``units_check_window``, ``rate``), the quasi-static filter's and its aligned-flag
     thresholds do not apply to it. Raises ValueError."""
     from sins_align.estimators.in_motion import MotionConfig
@@ -386,8 +393,11 @@ def motion_config_from_params(values: dict[str, Any]):
         velocity_noise=float(m["velocity_noise"]),
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
         attitude_matching=bool(m["attitude_matching"]),
-        initial_rpy_deg=_initial_rpy(m), max_gap=float(m["max_gap"]),
-        max_angular_rate=float(m["max_angular_rate"]))
+        initial_rpy_deg=_initial_rpy(m),
+        # a moving vehicle turns and rolls faster than a parked base sways, and an IMU hole
+        # is bridged by holding a sample: the quasi-static defaults do not fit
+        max_gap=min(float(m["max_gap"]), MOTION_MAX_GAP),
+        max_angular_rate=max(float(m["max_angular_rate"]), MOTION_MIN_RATE_LIMIT))
 
 
 def estimator_config(values: dict[str, Any]):

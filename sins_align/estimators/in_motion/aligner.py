@@ -445,7 +445,9 @@ class MotionAligner:
         return self._add("attitude", stamp, (dcm_from_quat(q), R))
 
     def add_position(self, stamp, lat_deg, lon_deg, height_m) -> bool:
-        """Geodetic position (NavSatFix): replaces the mechanized position (not estimated)."""
+        """Geodetic position (NavSatFix): replaces the mechanized position of every filter
+        on arrival (position is not estimated; it sets the Earth rate, transport rate and
+        gravity, for which a fix 0.1 s old, metres off, changes nothing measurable)."""
         vals = (lat_deg, lon_deg, height_m)
         if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in vals) or \
                 not -90.0 < lat_deg < 90.0:
@@ -453,7 +455,7 @@ class MotionAligner:
             return False
         self.position = (lat_deg * DEG, lon_deg * DEG, float(height_m))
         if self.ekf is not None:
-            self.ekf.lat, self.ekf.lon, self.ekf.h = self.position
+            self.ekf.lat[:], self.ekf.lon[:], self.ekf.h[:] = self.position
         self.events["position"] += 1
         return True
 
