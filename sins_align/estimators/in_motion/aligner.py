@@ -34,11 +34,11 @@ from collections.abc import Callable
 import numpy as np
 
 from sins_align.core.earth import normal_gravity
-from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rpy,
-                                      heading_from_dcm, quat_from_dcm, rpy_from_dcm)
+from sins_align.core.rotation import attitude_error, dcm_from_quat, dcm_from_rpy
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion.config import MotionConfig
+from sins_align.estimators.readout import AttitudeReadout
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel)
 from sins_align.estimators.quasi_static.aligner import AlignmentEvent
@@ -72,7 +72,7 @@ HYPOTHESIS_MIN_WEIGHT = 1e-6
 HYPOTHESIS_COLLAPSE = 0.999
 
 
-class MotionAligner:
+class MotionAligner(AttitudeReadout):
     """Streaming in-motion alignment of one IMU with a velocity reference.
 
     Examples
@@ -152,18 +152,6 @@ class MotionAligner:
         return np.eye(3) if self.ekf is None else self.ekf.C[self._best].copy()
 
     @property
-    def quaternion(self) -> np.ndarray:
-        return quat_from_dcm(self.dcm)
-
-    @property
-    def rpy_deg(self) -> np.ndarray:
-        return rpy_from_dcm(self.dcm) / DEG
-
-    @property
-    def heading_deg(self) -> float:
-        return float(heading_from_dcm(self.dcm)) / DEG
-
-    @property
     def covariance(self) -> np.ndarray:
         """Attitude error covariance, ENU (C_true = exp(e x) C_est), rad^2. Before the start:
         pi^2 on each axis (nothing known)."""
@@ -182,10 +170,6 @@ class MotionAligner:
         """Heading hypotheses still alive (1 once the heading is acquired; 0 before the
         start)."""
         return 0 if self.ekf is None else self.ekf.K
-
-    @property
-    def std_enu_deg(self) -> np.ndarray:
-        return np.sqrt(np.diag(self.covariance)) / DEG
 
     @property
     def velocity(self) -> np.ndarray:

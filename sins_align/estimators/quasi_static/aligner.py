@@ -35,11 +35,11 @@ import numpy as np
 
 from sins_align.core.earth import gravity_enu
 from sins_align.estimators.quasi_static.config import AlignConfig
+from sins_align.estimators.readout import AttitudeReadout
 from sins_align.estimators.quasi_static.fast_path import FAST_MIN_BLOCK
 from sins_align.estimators.quasi_static.filter import AlignmentFilter
 from sins_align.estimators.quasi_static.monitors import RecentMotion, UnitsMonitor
-from sins_align.core.rotation import (dcm_from_rpy, heading_from_dcm, quat_from_dcm,
-                                      rpy_from_dcm)
+from sins_align.core.rotation import dcm_from_rpy
 from sins_align.core.specs import DEG, limit_covariance
 
 #: Reasons a sample can be rejected. A rejected sample never touches the filter state.
@@ -86,7 +86,7 @@ class AlignmentEvent:
     value: bool | str
 
 
-class Aligner:
+class Aligner(AttitudeReadout):
     """Streaming SINS self-alignment on a quasi-static base (one IMU).
 
     Feed samples with :meth:`update` (one sample or a block); read the result at any time
@@ -181,21 +181,6 @@ class Aligner:
         return self.filter.C[0]
 
     @property
-    def quaternion(self) -> np.ndarray:
-        """Orientation of the IMU frame in ENU, [x, y, z, w] (C_b^n, as imu_filter_madgwick)."""
-        return quat_from_dcm(self.dcm)
-
-    @property
-    def rpy_deg(self) -> np.ndarray:
-        """REP-103 [roll, pitch, yaw], deg (yaw 0 = x axis East, counter-clockwise)."""
-        return rpy_from_dcm(self.dcm) / DEG
-
-    @property
-    def heading_deg(self) -> float:
-        """True heading of the IMU x axis, deg clockwise from North, [0, 360)."""
-        return float(heading_from_dcm(self.dcm) / DEG)
-
-    @property
     def covariance(self) -> np.ndarray:
         """Published attitude-error covariance (E/N/U, rad^2, phi of paper eq. 15).
 
@@ -241,11 +226,6 @@ class Aligner:
             P[:, 2] = 0.0
             P[2, 2] = math.pi ** 2
         return 0.5 * (P + P.T)
-
-    @property
-    def std_enu_deg(self) -> np.ndarray:
-        """Published one-sigma attitude error per axis (E, N, U), deg."""
-        return np.sqrt(np.diag(self.covariance)) / DEG
 
     @property
     def limit_std_deg(self) -> np.ndarray:
