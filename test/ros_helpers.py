@@ -184,6 +184,20 @@ class Probe:
         self._thread.join(timeout=5.0)
 
 
+def assert_refuses_start(executable: str, args: list[str], reason: str, tmp_path) -> NodeProcess:
+    """Start a node that must refuse its parameters: exit status 1 and one stderr line
+    containing ``reason``. Returns the finished process (for more checks)."""
+    p = NodeProcess(executable, args, tmp_path)
+    try:
+        rc = p.wait(timeout=30)
+    finally:
+        p.stop()
+    err = [ln for ln in p.stderr().splitlines() if ln.strip()]
+    assert rc == 1, p.output()
+    assert len(err) == 1 and reason in err[0], p.output()
+    return p
+
+
 def diag_values(arr, status_name: str) -> dict[str, str] | None:
     """Key/values (plus 'message' and 'level') of the status ``status_name`` in an array."""
     for st in arr.status:

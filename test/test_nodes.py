@@ -26,8 +26,8 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from ros_helpers import (LATCHED, NodeProcess, Probe, diag_values, latest_diag, stamp_ns,
-                         wait_until)
+from ros_helpers import (LATCHED, NodeProcess, Probe, assert_refuses_start, diag_values,
+                         latest_diag, stamp_ns, wait_until)
 import sins_align
 from sins_align.ros import align_node
 from sins_align.estimators.session import BACKWARD_JUMP_CONFIRM
@@ -323,14 +323,8 @@ def test_nodes_exit_cleanly_on_sigint(pair):
 ], ids=["missing-latitude", "latitude-out-of-range", "bad-model", "backtrack-too-short"])
 def test_bad_startup_parameters_exit_1_with_one_line(args, reason, tmp_path):
     """A bad or missing parameter: exit status 1 and one log line with the reason."""
-    p = NodeProcess("align_node", ["-r", "__node:=align_bad_param", *args], tmp_path)
-    try:
-        rc = p.wait(timeout=30)
-    finally:
-        p.stop()
-    err = [ln for ln in p.stderr().splitlines() if ln.strip()]
-    assert rc == 1, p.output()
-    assert len(err) == 1 and reason in err[0], p.output()
+    p = assert_refuses_start("align_node", ["-r", "__node:=align_bad_param", *args], reason,
+                             tmp_path)
     assert "Traceback" not in p.output()
 
 

@@ -14,7 +14,7 @@ from rclpy.qos import (DurabilityPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 from sensor_msgs.msg import Imu, NavSatFix
 
-from ros_helpers import NodeProcess, Probe, stamp_ns, wait_until
+from ros_helpers import NodeProcess, Probe, assert_refuses_start, stamp_ns, wait_until
 from sins_align.core.rotation import quat_from_dcm
 from sins_align.core.specs import grade_specs
 from sins_align.ros.params import SIM_PARAMS, check_param
@@ -161,11 +161,4 @@ def test_trajectory_parameter_schema():
     (["-p", "trajectory:=boat"], "trajectory must be one of"),
 ], ids=["sway", "gnss-rate", "unknown"])
 def test_bad_trajectory_parameters_exit_1_with_one_line(args, reason, tmp_path):
-    p = NodeProcess("imu_sim_node", ["-r", "__node:=sim_bad_traj", *args], tmp_path)
-    try:
-        rc = p.wait(timeout=30)
-    finally:
-        p.stop()
-    err = [ln for ln in p.stderr().splitlines() if ln.strip()]
-    assert rc == 1, p.output()
-    assert len(err) == 1 and reason in err[0], p.output()
+    assert_refuses_start("imu_sim_node", ["-r", "__node:=sim_bad_traj", *args], reason, tmp_path)
