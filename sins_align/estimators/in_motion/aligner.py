@@ -38,6 +38,7 @@ from sins_align.core.rotation import attitude_error, dcm_from_quat, dcm_from_rpy
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion.config import MotionConfig
+from sins_align.estimators.in_motion.feedback import LqrFeedback, lqr_gain
 from sins_align.estimators.readout import AttitudeReadout
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel)
@@ -149,7 +150,7 @@ class MotionAligner(AttitudeReadout):
 
     @property
     def dcm(self) -> np.ndarray:
-        return np.eye(3) if self.ekf is None else self.ekf.C[self._best].copy()
+        return np.eye(3) if self.ekf is None else self.ekf.corrected(self._best)[0]
 
     @property
     def covariance(self) -> np.ndarray:
@@ -162,7 +163,8 @@ class MotionAligner(AttitudeReadout):
             return covs[0]
         # the Gaussian sum's covariance about the published (best) hypothesis
         w = np.exp(self._logw)
-        d = attitude_error(self.ekf.C, self.ekf.C[self._best][None])     # (K, 3), ENU
+        Cs = np.array([self.ekf.corrected(i)[0] for i in range(self.ekf.K)])
+        d = attitude_error(Cs, Cs[self._best][None])                     # (K, 3), ENU
         return np.einsum("k,kij->ij", w, covs + d[:, :, None] * d[:, None, :])
 
     @property
@@ -173,20 +175,20 @@ class MotionAligner(AttitudeReadout):
 
     @property
     def velocity(self) -> np.ndarray:
-        return np.full(3, np.nan) if self.ekf is None else self.ekf.v[self._best].copy()
+        return np.full(3, np.nan) if self.ekf is None else self.ekf.corrected(self._best)[1]
 
     @property
     def bias_gyro(self) -> np.ndarray:
-        return np.full(3, np.nan) if self.ekf is None else self.ekf.bg[self._best].copy()
+        return np.full(3, np.nan) if self.ekf is None else self.ekf.corrected(self._best)[2]
 
     @property
     def bias_accel(self) -> np.ndarray:
-        return np.full(3, np.nan) if self.ekf is None else self.ekf.ba[self._best].copy()
+        return np.full(3, np.nan) if self.ekf is None else self.ekf.corrected(self._best)[3]
 
     @property
     def lever_arm(self) -> np.ndarray:
         return (np.array(self.config.lever_arm) if self.ekf is None
-                else self.ekf.lever[self._best].copy())
+                else self.ekf.corrected(self._best)[4])
 
     @property
     def nis(self) -> float:
@@ -368,6 +370,8 @@ class MotionAligner(AttitudeReadout):
         lat, lon, h = self.position
         self.ekf = InvariantEKF(NavState(C, z, lat, lon, h), P, self.noise, c.lever_arm, C=Cs,
                                 extra=extra)
+        if c.feedback == "lqr":
+            self.ekf.schedule = LqrFeedback(lqr_gain(n, lat, g, c.lqr_time_constant))
         self.ekf.w_last[:] = ws[-1]
         self.ekf.f_last[:] = fs[-1]
         self._logw = np.full(K, -math.log(K))
@@ -661,7 +665,8 @@ class MotionAligner(AttitudeReadout):
             "bias_gyro_dph": (self.bias_gyro / DPH).tolist() if ok else None,
             "bias_accel_mg": (self.bias_accel / 9.80665e-3).tolist() if ok else None,
             "lever_arm_m": self.lever_arm.tolist(),
-            "mounting_deg": (self.ekf.mount[self._best] / DEG).tolist() if ok else None,
+            "mounting_deg": (self.ekf.corrected(self._best)[5] / DEG).tolist() if ok else None,
+            "feedback": self.config.feedback,
             "nis": self.nis,
         }
 

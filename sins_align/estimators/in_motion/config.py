@@ -10,6 +10,8 @@ from sins_align.core.specs import SensorSpecs, grade_specs
 
 #: vehicle kinds: 'ground' adds the non-holonomic constraint (no lateral body velocity)
 VEHICLES = ("ground", "air", "marine")
+#: feedback of the estimated errors into the state
+FEEDBACKS = ("full", "lqr")
 
 
 @dataclass(frozen=True)
@@ -49,6 +51,11 @@ class MotionConfig:
     attitude_noise_deg : 1-sigma per axis of a master attitude that comes without covariance.
     mounting_std_deg : 1-sigma per axis of the mounting misalignment between the master's
         axes and ours, estimated with ``attitude_matching`` (0: taken as exactly zero).
+    feedback : 'full' (the estimated errors are removed from the state after every update:
+        the default, and the strapdown practice) or 'lqr' (seed 002: the error estimate is
+        carried on and removed gradually through LQR-designed gains,
+        :mod:`~sins_align.estimators.in_motion.feedback`).
+    lqr_time_constant : s — the time constant the LQR weights aim at.
     nis_inflate : a measurement whose normalised innovation per degree of freedom exceeds this
         has its noise inflated until it equals it (large early transients, skids, outliers).
     max_gap : s — IMU stamp gaps above this restart the alignment.
@@ -81,6 +88,8 @@ class MotionConfig:
     attitude_noise_deg: float = 0.1
     mounting_std_deg: float = 1.0
     nis_inflate: float = 5.0
+    feedback: str = "full"
+    lqr_time_constant: float = 5.0
     max_gap: float = 1.0
     max_angular_rate: float = 10.0
     specific_force_max: float = 160.0
@@ -105,6 +114,8 @@ class MotionConfig:
         if not (isinstance(self.heading_hypotheses, int) and 2 <= self.heading_hypotheses <= 72):
             raise ValueError(f"heading_hypotheses must be an integer 2..72, got "
                              f"{self.heading_hypotheses!r}")
+        if self.feedback not in FEEDBACKS:
+            raise ValueError(f"feedback must be one of {FEEDBACKS}, got {self.feedback!r}")
         if self.nhc_axis not in (0, 1, 2):
             raise ValueError(f"nhc_axis must be 0, 1 or 2, got {self.nhc_axis!r}")
         if not (-90.0 < self.latitude_deg < 90.0):
@@ -113,7 +124,7 @@ class MotionConfig:
                     "attitude_noise_deg", "nis_inflate", "max_gap", "max_angular_rate",
                     "specific_force_max", "observable_heading_std_deg",
                     "aligned_level_std_deg", "aligned_heading_std_deg", "aligned_nis",
-                    "aligned_nis_window", "initial_heading_std_deg")
+                    "aligned_nis_window", "initial_heading_std_deg", "lqr_time_constant")
         for name in positive:
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):

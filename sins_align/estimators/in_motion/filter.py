@@ -255,10 +255,16 @@ class InvariantEKF:
         self.ba = np.zeros((K, 3))
         self.lever = np.tile(np.asarray(lever_arm, dtype=float).reshape(3), (K, 1))
         self.mount = np.zeros((K, 3))
+        self.dx = np.zeros((K, self.n))       # error estimate not yet fed back (see feedback)
+        #: None: full reset after every update; else a callable giving, for the time since
+        #: the last feedback, the (n, n) fraction of the error estimate to feed back
+        #: (:class:`~sins_align.estimators.in_motion.feedback.LqrFeedback`)
+        self.schedule = None
+        self.t_since_feedback = 0.0
         self.w_last = np.zeros((K, 3))
         self.f_last = np.zeros((K, 3))
 
-    _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "w_last",
+    _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "dx", "w_last",
                "f_last")
 
     @property
@@ -354,6 +360,9 @@ class InvariantEKF:
         Q[:, IBA, IBA] = nz.accel_bias_walk ** 2 * Ttot * _I3
         P = Phi @ self.P @ _mT(Phi) + Q
         self.P = 0.5 * (P + _mT(P))
+        self.t_since_feedback += Ttot
+        if self.schedule is not None:
+            self.dx = np.einsum("kij,kj->ki", Phi, self.dx)
         # ---------------------------------------------------------- mechanization
         C0, v0, lat0, h0 = self.C, self.v, self.lat, self.h
         w_ie, w_en = _w_in(v0, lat0, h0)
@@ -408,12 +417,33 @@ class InvariantEKF:
             R = R + (a - 1.0)[:, None, None] * S
             Sinv = Sinv / a[:, None, None]
         Kg = P @ HT @ Sinv
-        dx = np.einsum("kij,kj->ki", Kg, y)
         IKH = np.eye(self.n) - Kg @ H
         P = IKH @ P @ _mT(IKH) + Kg @ R @ _mT(Kg)
         self.P = 0.5 * (P + _mT(P))
-        self.feedback(dx)
+        if self.schedule is None:
+            self.feedback(np.einsum("kij,kj->ki", Kg, y))
+        else:
+            # the error estimate carried on: the residual about it, then its scheduled part
+            # fed back (seed 002's LQR feedback)
+            dx = self.dx + np.einsum("kij,kj->ki", Kg, y - np.einsum("kij,kj->ki", H, self.dx))
+            u = np.einsum("ij,kj->ki", self.schedule(self.t_since_feedback), dx)
+            self.feedback(u)
+            self.dx = dx - u
+        self.t_since_feedback = 0.0
         return nis, loglik
+
+    def corrected(self, i: int):
+        """Filter i's state with the error estimate not yet fed back removed: (C, v, bg, ba,
+        lever, mount). With full feedback that is the state itself."""
+        dx = self.dx[i]
+        C = self.C[i] @ so3_exp(-dx[IPHI])
+        out = [C, self.v[i] - C @ dx[INU], self.bg[i] - dx[IBG], self.ba[i] - dx[IBA],
+               self.lever[i].copy(), self.mount[i].copy()]
+        if self.i_lev is not None:
+            out[4] = out[4] - dx[self.i_lev]
+        if self.i_mnt is not None:
+            out[5] = out[5] - dx[self.i_mnt]
+        return tuple(out)
 
     def feedback(self, dx) -> None:
         """Remove estimated errors ``dx`` (K, n) from the states (full reset)."""
