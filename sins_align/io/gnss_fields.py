@@ -2,7 +2,10 @@
 
 As :mod:`sins_align.io.imu_fields` for the IMU: one place turns GNSS arrays into the numbers
 of a ``geometry_msgs/TwistWithCovarianceStamped`` (velocity) and a ``sensor_msgs/NavSatFix``
-(position), so a bag and a live run carry identical fields. No ROS imports here (numpy only).
+(position), so a bag and a live run carry identical fields. No ROS imports here (numpy only):
+imu_sim_node fills rclpy messages with these values, the simulate tool passes them to the
+rosbags builders of :mod:`sins_align.io.reference_msgs` (where the NavSatFix constants are
+defined too).
 
 Conventions (as the ublox_gps driver publishes them)
 ----------------------------------------------------
@@ -28,18 +31,19 @@ from typing import Iterator
 import numpy as np
 
 from sins_align.io.imu_fields import split_stamp
+from sins_align.io.reference_msgs import (COVARIANCE_TYPE_DIAGONAL_KNOWN,
+                                          COVARIANCE_TYPE_UNKNOWN, SERVICE_GPS, STATUS_FIX,
+                                          covariance3)
+
+__all__ = ["GNSS_VELOCITY_TOPIC", "GNSS_FIX_TOPIC", "GNSS_FRAME", "STATUS_FIX", "SERVICE_GPS",
+           "COVARIANCE_TYPE_UNKNOWN", "COVARIANCE_TYPE_DIAGONAL_KNOWN", "velocity_covariance",
+           "position_covariance", "GnssFields", "gnss_fields", "epoch_stamps_ns"]
 
 #: Relative topic names (resolved at root in bags: /gnss/fix_velocity, /gnss/fix).
 GNSS_VELOCITY_TOPIC = "gnss/fix_velocity"
 GNSS_FIX_TOPIC = "gnss/fix"
 #: Default frame_id of the GNSS messages (the antenna).
 GNSS_FRAME = "gnss_link"
-
-#: sensor_msgs/NavSatStatus and NavSatFix constants.
-STATUS_FIX = 0
-SERVICE_GPS = 1
-COVARIANCE_TYPE_UNKNOWN = 0
-COVARIANCE_TYPE_DIAGONAL_KNOWN = 2
 
 
 def velocity_covariance(sigma: float, vertical: bool = True) -> tuple[float, ...]:
@@ -56,8 +60,7 @@ def velocity_covariance(sigma: float, vertical: bool = True) -> tuple[float, ...
 def position_covariance(sigma: float) -> tuple[tuple[float, ...], int]:
     """``(position_covariance, position_covariance_type)`` of a NavSatFix."""
     if sigma > 0.0:
-        v = float(sigma) ** 2
-        return (v, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, v), COVARIANCE_TYPE_DIAGONAL_KNOWN
+        return tuple(covariance3(sigma).tolist()), COVARIANCE_TYPE_DIAGONAL_KNOWN
     return (0.0,) * 9, COVARIANCE_TYPE_UNKNOWN
 
 

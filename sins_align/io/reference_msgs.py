@@ -1,6 +1,8 @@
 """Reference-sensor messages for bags written with rosbags: a master INS as
 ``nav_msgs/Odometry``, its velocity as ``geometry_msgs/TwistWithCovarianceStamped`` and its
-position as ``sensor_msgs/NavSatFix``; and the frame conversions that fill them.
+position as ``sensor_msgs/NavSatFix``; and the frame conversions that fill them. The one set
+of builders of these messages: ``import_imu`` writes a master INS with them, ``simulate`` the
+GNSS receiver (its field values from :mod:`sins_align.io.gnss_fields`).
 
 No ROS imports: the messages are rosbags objects of the ROS 2 Jazzy typestore
 (:func:`sins_align.io.bagio.typestore`), serialised with ``store.serialize_cdr``.
@@ -42,9 +44,10 @@ MASTER_FRAME = "master_link"
 COVARIANCE_TYPE_UNKNOWN = 0
 COVARIANCE_TYPE_APPROXIMATED = 1
 COVARIANCE_TYPE_DIAGONAL_KNOWN = 2
-#: sensor_msgs/NavSatStatus: a fix, service unknown
+#: sensor_msgs/NavSatStatus: a fix; the service unknown or GPS
 STATUS_FIX = 0
 SERVICE_UNKNOWN = 0
+SERVICE_GPS = 1
 
 
 def covariance6(linear_std: float, angular_std: float) -> np.ndarray:

@@ -28,7 +28,8 @@ With ``--trajectory NAME`` (a preset of :mod:`sins_align.sim.trajectory`: car_ci
 car_straight, ship_under_way, car_with_turn, uav_seed003) the vehicle moves: the preset
 starts at ``--latitude``/``--height`` and runs its own duration unless ``--duration`` is
 given (longer continues its last commands). The bag then also holds, at ``--gnss-rate``
-(fields from :mod:`sins_align.io.gnss_fields`):
+(fields from :mod:`sins_align.io.gnss_fields`, messages built by
+:mod:`sins_align.io.reference_msgs`):
 
 - ``/gnss/fix_velocity`` — ``geometry_msgs/TwistWithCovarianceStamped``: antenna velocity
   in ENU (lever arm ``--lever-arm``, body axes), noise ``--gnss-noise`` m/s per axis,
@@ -61,7 +62,8 @@ from sins_align.io.bagio import (AtomicOutput, CliError, COMPRESSIONS, Messages,
 from sins_align.io.imu_fields import (IMU_FRAME, MAX_STAMP_S, RAW_TOPIC, TRUTH_TOPIC,
                                       imu_covariances, imu_fields, sample_stamps_ns, truth_fields)
 from sins_align.io.gnss_fields import (GNSS_FIX_TOPIC, GNSS_FRAME, GNSS_VELOCITY_TOPIC,
-                                       SERVICE_GPS, STATUS_FIX, epoch_stamps_ns, gnss_fields)
+                                       epoch_stamps_ns, gnss_fields)
+from sins_align.io import reference_msgs as ref
 from sins_align.io.imu_fields import stamp_ns
 from sins_align.core.specs import DEG, DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
 from sins_align.sim.trajectory import PRESETS
@@ -302,34 +304,6 @@ def simulate_moving(args, specs):
         gnss_vertical=not args.no_gnss_vertical, gnss_pos_sigma=args.gnss_position_noise)
 
 
-def _twist_msg(msgs: Messages, f):
-    """geometry_msgs/TwistWithCovarianceStamped of a GNSS velocity (rosbags; private until
-    the package has shared builders for the reference messages)."""
-    t = msgs.store.types
-    v = f.velocity_enu
-    twist = t["geometry_msgs/msg/Twist"](
-        linear=msgs.Vector3(x=v[0], y=v[1], z=v[2]), angular=msgs.Vector3(x=0.0, y=0.0, z=0.0))
-    return t[TWIST_COV_STAMPED](
-        header=msgs.header(f.sec, f.nanosec, f.frame_id),
-        twist=t["geometry_msgs/msg/TwistWithCovariance"](
-            twist=twist, covariance=msgs._cov(f.velocity_covariance)))
-
-
-def _navsat_msg(msgs: Messages, f):
-    """sensor_msgs/NavSatFix of a GNSS position (rosbags; private, as :func:`_twist_msg`)."""
-    t = msgs.store.types
-    return t[NAV_SAT_FIX](
-        header=msgs.header(f.sec, f.nanosec, f.frame_id),
-        status=t["sensor_msgs/msg/NavSatStatus"](status=STATUS_FIX, service=SERVICE_GPS),
-        latitude=f.latitude_deg, longitude=f.longitude_deg, altitude=f.altitude_m,
-        position_covariance=msgs._cov(f.position_covariance),
-        position_covariance_type=f.position_covariance_type)
-
-
-TWIST_COV_STAMPED = "geometry_msgs/msg/TwistWithCovarianceStamped"
-NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"
-
-
 def write_moving_bag(out: Path, args, specs) -> int:
     """Simulate the trajectory and write the bag at ``out`` (must not exist): IMU, truth and
     GNSS in log-time order (at equal times the IMU sample first). Returns the sample count."""
@@ -351,10 +325,11 @@ def write_moving_bag(out: Path, args, specs) -> int:
         c_truth = writer.add_connection("/" + TRUTH_TOPIC, Messages.QUATERNION_STAMPED,
                                         typestore=msgs.store,
                                         offered_qos_profiles=[qos_profile()])
-        c_vel = writer.add_connection("/" + GNSS_VELOCITY_TOPIC, TWIST_COV_STAMPED,
-                                      typestore=msgs.store, offered_qos_profiles=[qos_profile()])
-        c_fix = writer.add_connection("/" + GNSS_FIX_TOPIC, NAV_SAT_FIX, typestore=msgs.store,
+        c_vel = writer.add_connection("/" + GNSS_VELOCITY_TOPIC,
+                                      ref.TWIST_WITH_COVARIANCE_STAMPED, typestore=msgs.store,
                                       offered_qos_profiles=[qos_profile()])
+        c_fix = writer.add_connection("/" + GNSS_FIX_TOPIC, ref.NAV_SAT_FIX,
+                                      typestore=msgs.store, offered_qos_profiles=[qos_profile()])
         for key, val in (("trajectory", args.trajectory), ("latitude_deg", args.latitude),
                          ("height_m", args.height), ("grade", args.grade),
                          ("specs_si", [specs.gyro_bias, specs.gyro_arw, specs.accel_bias,
@@ -397,8 +372,16 @@ def write_moving_bag(out: Path, args, specs) -> int:
 
 
 def _write_gnss(writer, msgs, c_vel, c_fix, f, j) -> int:
-    writer.write(c_vel, f.arrival_ns, msgs.serialize(_twist_msg(msgs, f)))
-    writer.write(c_fix, f.arrival_ns, msgs.serialize(_navsat_msg(msgs, f)))
+    """Write GNSS epoch ``f`` (:class:`~sins_align.io.gnss_fields.GnssFields`) at its arrival
+    time: velocity (ENU; angular rate 0, not provided) and fix. Returns j + 1."""
+    store = msgs.store
+    vel = ref.twist_with_covariance_stamped(store, f.stamp_ns, f.frame_id, f.velocity_enu,
+                                            (0.0, 0.0, 0.0), f.velocity_covariance)
+    fix = ref.nav_sat_fix(store, f.stamp_ns, f.frame_id, f.latitude_deg, f.longitude_deg,
+                          f.altitude_m, f.position_covariance, f.position_covariance_type,
+                          ref.STATUS_FIX, ref.SERVICE_GPS)
+    writer.write(c_vel, f.arrival_ns, msgs.serialize(vel))
+    writer.write(c_fix, f.arrival_ns, msgs.serialize(fix))
     return j + 1
 
 
