@@ -122,10 +122,13 @@ SCENARIOS = (
     Scenario("uav/vib+sf+lat", "uav_seed003", SEED003_SPECS, (3, 4, 45), live=True,
              sim=dict(vibration=UAV_VIBRATION, gyro_scale_ppm=3000.0,
                       accel_scale_ppm=3000.0, gnss_latency=0.1)),
+    Scenario("uav/sf+gs", "uav_seed003", SEED003_SPECS, (3, 4, 45),
+             sim=dict(gyro_scale_ppm=3000.0, accel_scale_ppm=3000.0),
+             cfg=dict(gyro_scale_std=0.003, accel_scale_std=0.003)),
     Scenario("uav/vib+sf+lat+gs", "uav_seed003", SEED003_SPECS, (3, 4, 45), live=True,
              sim=dict(vibration=UAV_VIBRATION, gyro_scale_ppm=3000.0,
                       accel_scale_ppm=3000.0, gnss_latency=0.1),
-             cfg=dict(gyro_scale_std=0.003)),
+             cfg=dict(gyro_scale_std=0.003, accel_scale_std=0.003)),
 )
 
 

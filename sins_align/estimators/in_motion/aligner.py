@@ -90,7 +90,7 @@ class MotionAligner(AttitudeReadout):
         tau = s.bias_correlation_time
         walk_g = s.gyro_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.gyro_bias
         walk_a = s.accel_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.accel_bias
-        self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a, config.gyro_scale_std)
+        self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a)
         self.rejected: Counter = Counter()
         self.events: Counter = Counter()
         self._listeners: list[Callable[[AlignmentEvent], None]] = []
@@ -349,7 +349,9 @@ class MotionAligner(AttitudeReadout):
         v_var[~np.isfinite(v_var)] = 4.0
         v_var = v_var + (age * (a_h + 0.5)) ** 2 + (wmax * lev) ** 2 + 0.05 ** 2
         extra = tuple(x for x, on in (("lever", c.lever_arm_std > 0),
-                                      ("mount", c.attitude_matching and c.mounting_std_deg > 0))
+                                      ("mount", c.attitude_matching and c.mounting_std_deg > 0),
+                                      ("gyro_scale", c.gyro_scale_std > 0),
+                                      ("accel_scale", c.accel_scale_std > 0))
                       if on)
         n = 12 + 3 * len(extra)
         P = np.zeros((n, n))
@@ -364,7 +366,8 @@ class MotionAligner(AttitudeReadout):
         P[:, IBA, IBA] = np.eye(3) * c.specs.accel_bias ** 2
         i = 12
         for x in extra:
-            std = c.lever_arm_std if x == "lever" else c.mounting_std_deg * DEG
+            std = {"lever": c.lever_arm_std, "mount": c.mounting_std_deg * DEG,
+                   "gyro_scale": c.gyro_scale_std, "accel_scale": c.accel_scale_std}[x]
             P[:, i:i + 3, i:i + 3] = np.eye(3) * std ** 2
             i += 3
         lat, lon, h = self.position
@@ -667,6 +670,8 @@ class MotionAligner(AttitudeReadout):
             "lever_arm_m": self.lever_arm.tolist(),
             "mounting_deg": (self.ekf.corrected(self._best)[5] / DEG).tolist() if ok else None,
             "feedback": self.config.feedback,
+            "gyro_scale_ppm": (self.ekf.sf[self._best] * 1e6).tolist() if ok else None,
+            "accel_scale_ppm": (self.ekf.sa[self._best] * 1e6).tolist() if ok else None,
             "nis": self.nis,
         }
 

@@ -24,9 +24,11 @@ class MotionConfig:
         :meth:`MotionAligner.add_position` replaces it).
     specs : SensorSpecs or a grade name ('navigation', 'tactical', 'consumer'): the bias
         priors and noise densities of the filter.
-    gyro_scale_std : 1-sigma gyro scale-factor error (fraction, e.g. 0.003 for a MEMS gyro
-        of 0.3 %); not estimated, its attitude error is added to the covariance as the IMU
-        turns (see :class:`~sins_align.estimators.in_motion.filter.NoiseModel`).
+    gyro_scale_std : 1-sigma gyro scale-factor error per axis (fraction, e.g. 0.003 for a
+        MEMS gyro of 0.3 %); > 0 estimates the three scale factors (3 more states): a
+        vehicle that turns or rolls hard otherwise accumulates their attitude error unseen.
+    accel_scale_std : the same for the accelerometers (0.3 % of g is 3 mg on the vertical
+        axis, which tilts into the level axes when the vehicle banks).
     lever_arm : (3,) m, IMU frame — from the IMU to the antenna of the velocity reference.
     lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (15 states).
     velocity_noise : m/s — 1-sigma of a velocity measurement that comes without covariance.
@@ -72,6 +74,7 @@ class MotionConfig:
     height_m: float = 0.0
     specs: SensorSpecs | str = "consumer"
     gyro_scale_std: float = 0.0
+    accel_scale_std: float = 0.0
     lever_arm: tuple = (0.0, 0.0, 0.0)
     lever_arm_std: float = 0.0
     velocity_noise: float = 0.1
@@ -130,11 +133,11 @@ class MotionConfig:
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
         for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m",
-                     "mounting_std_deg", "gyro_scale_std"):
+                     "mounting_std_deg", "gyro_scale_std", "accel_scale_std"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x)):
                 raise ValueError(f"{name} must be finite, got {x!r}")
         if min(self.lever_arm_std, self.max_measurement_lag, self.mounting_std_deg,
-               self.gyro_scale_std) < 0:
-            raise ValueError("lever_arm_std, max_measurement_lag, mounting_std_deg and "
-                             "gyro_scale_std must be >= 0")
+               self.gyro_scale_std, self.accel_scale_std) < 0:
+            raise ValueError("lever_arm_std, max_measurement_lag, mounting_std_deg and the "
+                             "scale-factor stds must be >= 0")

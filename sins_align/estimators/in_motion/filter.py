@@ -97,9 +97,10 @@ MAX_RUN = 1.0
 
 IPHI, INU, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 #: optional 3-state blocks after the 12 core states, in this order when present: the lever
-#: arm (body, m) and the mounting misalignment of a master INS (``C_slave = C_master exp(mu
-#: x)``, rad, master axes)
-EXTRA_STATES = ("lever", "mount")
+#: arm (body, m), the mounting misalignment of a master INS (``C_slave = C_master exp(mu
+#: x)``, rad, master axes), the gyro scale factors (``gyro = (1 + s) w + b_g``, per axis)
+#: and the accelerometer scale factors (``accel = (1 + s_a) f + b_a``)
+EXTRA_STATES = ("lever", "mount", "gyro_scale", "accel_scale")
 _I3 = np.eye(3)
 
 
@@ -109,16 +110,12 @@ class NoiseModel:
 
     gyro_arw : rad/sqrt(s); accel_vrw : m/s/sqrt(s); gyro_bias_walk : rad/s/sqrt(s);
     accel_bias_walk : m/s^2/sqrt(s).
-    gyro_scale : 1-sigma gyro scale-factor error (fraction), not estimated: each run adds
-        ``(gyro_scale * |rotation about each body axis|)^2`` to the attitude variance, so a
-        vehicle that turns or rolls hard gets the uncertainty its gyro's scale leaves.
     """
 
     gyro_arw: float
     accel_vrw: float
     gyro_bias_walk: float
     accel_bias_walk: float
-    gyro_scale: float = 0.0
 
 
 # Small-array kernels: numpy's general functions (np.cross, stacks of components) cost tens of
@@ -243,18 +240,24 @@ class InvariantEKF:
         blocks = [x for x in EXTRA_STATES if x in extra]
         if self.P.shape[-2:] != (12 + 3 * len(blocks),) * 2:
             raise ValueError(f"P0 must be {12 + 3 * len(blocks)} square for extra={blocks}")
-        self.i_lev = self.i_mnt = None
+        self.i_lev = self.i_mnt = self.i_sf = self.i_sa = None
         for i, x in enumerate(blocks):
             sl = slice(12 + 3 * i, 15 + 3 * i)
             if x == "lever":
                 self.i_lev = sl
-            else:
+            elif x == "mount":
                 self.i_mnt = sl
+            elif x == "gyro_scale":
+                self.i_sf = sl
+            else:
+                self.i_sa = sl
         self.noise = noise
         self.bg = np.zeros((K, 3))
         self.ba = np.zeros((K, 3))
         self.lever = np.tile(np.asarray(lever_arm, dtype=float).reshape(3), (K, 1))
         self.mount = np.zeros((K, 3))
+        self.sf = np.zeros((K, 3))            # gyro scale factors (estimated with i_sf)
+        self.sa = np.zeros((K, 3))            # accelerometer scale factors (with i_sa)
         self.dx = np.zeros((K, self.n))       # error estimate not yet fed back (see feedback)
         #: None: full reset after every update; else a callable giving, for the time since
         #: the last feedback, the (n, n) fraction of the error estimate to feed back
@@ -264,8 +267,8 @@ class InvariantEKF:
         self.w_last = np.zeros((K, 3))
         self.f_last = np.zeros((K, 3))
 
-    _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "dx", "w_last",
-               "f_last")
+    _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "sf", "sa",
+               "dx", "w_last", "f_last")
 
     @property
     def K(self) -> int:
@@ -313,8 +316,8 @@ class InvariantEKF:
             k = e
 
     def _run(self, dt, gyro, accel):
-        w = gyro - self.bg[:, None]                  # (K, m, 3)
-        f = accel - self.ba[:, None]
+        w = (gyro - self.bg[:, None]) / (1.0 + self.sf[:, None])    # (K, m, 3)
+        f = (accel - self.ba[:, None]) / (1.0 + self.sa[:, None])
         rv = w * dt[None, :, None]
         q = quat_from_rotvec(np.concatenate([rv, 0.5 * rv], 0))
         K = len(w)
@@ -341,6 +344,18 @@ class InvariantEKF:
         Phi[:, INU, INU] = GmT
         Phi[:, INU, IBG] = GmT @ Mx
         Phi[:, INU, IBA] = -GS
+        if self.i_sf is not None:
+            # a scale-factor error acts as a bias of w per axis: the same sums, each
+            # sample weighted by its rotation instead of its duration
+            Rrv = R_mid * rv[:, :, None, :]
+            Sw = np.cumsum(Rrv, axis=1)
+            Mw = np.einsum("kmij,kmjl->kil", _skew(dV), Sw - 0.5 * Rrv)
+            Phi[:, IPHI, self.i_sf] = -GmT @ Sw[:, -1]
+            Phi[:, INU, self.i_sf] = GmT @ Mw
+        if self.i_sa is not None:
+            # and an accelerometer scale-factor error as an accelerometer bias of f per axis
+            Phi[:, INU, self.i_sa] = -GmT @ (R_mid * (f * dt[None, :, None])[:, :, None, :]
+                                             ).sum(axis=1)
         nz = self.noise
         qg, qa = nz.gyro_arw ** 2, nz.accel_vrw ** 2
         D = Vm[:, None] - V                          # (K, m, 3)
@@ -349,9 +364,6 @@ class InvariantEKF:
         B = d2[:, None, None] * _I3 - np.einsum("m,kmi,kmj->kij", dt, D, D)
         Q = np.zeros((K, n, n))
         Q[:, IPHI, IPHI] = qg * Ttot * _I3
-        if nz.gyro_scale > 0.0:
-            turn = nz.gyro_scale * np.abs(rv).sum(axis=1)           # (K, 3), body (start)
-            Q[:, IPHI, IPHI] += GmT @ (turn[:, :, None] ** 2 * _I3) @ Gm
         c = qg * (GmT @ _skew(A) @ Gm)
         Q[:, IPHI, INU] = c
         Q[:, INU, IPHI] = _mT(c)
@@ -455,6 +467,10 @@ class InvariantEKF:
             self.lever = self.lever - dx[:, self.i_lev]
         if self.i_mnt is not None:
             self.mount = self.mount - dx[:, self.i_mnt]
+        if self.i_sf is not None:
+            self.sf = self.sf - dx[:, self.i_sf]
+        if self.i_sa is not None:
+            self.sa = self.sa - dx[:, self.i_sa]
 
     def velocity_model(self):
         """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state."""
@@ -471,6 +487,8 @@ class InvariantEKF:
         Hb[:, :, IBG] = -_skew(lever)
         if self.i_lev is not None:
             Hb[:, :, self.i_lev] = -_skew(w_nb)
+        if self.i_sf is not None:
+            Hb[:, :, self.i_sf] = -_skew(lever) * self.w_last[:, None, :]
         return z_hat, C @ Hb
 
     def update_velocity(self, z, R, nis_limit=None):
@@ -515,8 +533,8 @@ def propagate_reference(ekf: InvariantEKF, dt, gyro, accel) -> None:
     n = ekf.n
     for d, g, a in zip(np.asarray(dt, float).reshape(-1), np.asarray(gyro, float).reshape(-1, 3),
                        np.asarray(accel, float).reshape(-1, 3)):
-        w = g - ekf.bg[0]
-        f = a - ekf.ba[0]
+        w = (g - ekf.bg[0]) / (1.0 + ekf.sf[0])
+        f = (a - ekf.ba[0]) / (1.0 + ekf.sa[0])
         rho = so3_exp(w * d)
         half = so3_exp(0.5 * w * d)
         dV = half @ f * d
@@ -527,6 +545,11 @@ def propagate_reference(ekf: InvariantEKF, dt, gyro, accel) -> None:
         Phi[INU, INU] = rho.T
         Phi[INU, IBG] = 0.5 * d * rho.T @ skew(dV) @ half
         Phi[INU, IBA] = -d * rho.T @ half
+        if ekf.i_sf is not None:
+            Phi[IPHI, ekf.i_sf] = Phi[IPHI, IBG] @ np.diag(w)
+            Phi[INU, ekf.i_sf] = Phi[INU, IBG] @ np.diag(w)
+        if ekf.i_sa is not None:
+            Phi[INU, ekf.i_sa] = Phi[INU, IBA] @ np.diag(f)
         Q = np.zeros((n, n))
         Q[IPHI, IPHI] = nz.gyro_arw ** 2 * d * _I3
         Q[INU, INU] = nz.accel_vrw ** 2 * d * _I3
