@@ -585,6 +585,11 @@ class MotionAligner(AttitudeReadout):
             same = np.all(np.abs(d) <= 3.0 * sd, axis=1) & (sd[2] <= self._prior_head_std / 3.0)
             same[best] = False
             if same.any():
+                # moment matching: the best one takes on the merged ones' spread about it
+                wm = np.exp(lw[same] - np.logaddexp(lw[best], np.logaddexp.reduce(lw[same])))
+                spread = np.einsum("k,ki,kj->ij", wm, d[same], d[same])        # ENU
+                Cb = self.ekf.C[best]
+                self.ekf.P[best][IPHI, IPHI] += Cb.T @ spread @ Cb
                 lw[best] = np.logaddexp(lw[best], np.logaddexp.reduce(lw[same]))
                 keep &= ~same
                 self.events["hypotheses_merged"] += int(same.sum())
