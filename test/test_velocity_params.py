@@ -91,6 +91,11 @@ def test_a_velocity_topic_builds_the_in_motion_estimator_from_the_parameters():
     assert (cfg.max_gap, cfg.max_angular_rate, cfg.attitude_matching) == (1.0, 10.0, True)
     tight = P.estimator_config({**values, "max_gap": 0.3, "max_angular_rate": 20.0})
     assert (tight.max_gap, tight.max_angular_rate) == (0.3, 20.0)
+    assert cfg.nhc_axis == 1
+    assert P.estimator_config({**values, "lateral_axis": 0}).nhc_axis == 0
+    for bad in (3, "y"):
+        with pytest.raises(ValueError, match="lateral_axis"):
+            P.estimator_config({**values, "lateral_axis": bad})
     assert cfg.specs == P.sensor_specs(P.checked_values(values))
     assert isinstance(P.make_estimator(cfg), MotionAligner)
     ref = P.velocity_reference(values)

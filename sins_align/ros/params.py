@@ -140,6 +140,9 @@ PARAMS: tuple[ParamSpec, ...] = (
               "IMU passed their stamp, s (later ones are rejected).", 0.0, 60.0),
     ParamSpec("vehicle", "air", "Vehicle kind: ground (adds the non-holonomic constraint of a "
               "wheeled vehicle), air or marine.", choices=VEHICLES),
+    ParamSpec("lateral_axis", 1, "vehicle ground: the IMU axis that points to the vehicle's "
+              "side, 0 = x, 1 = y, 2 = z (1 for an IMU mounted x forward, y left; 0 for a "
+              "right-forward-up IMU). A number: YAML reads a bare y as true.", 0, 2),
     ParamSpec("attitude_matching", False, "velocity_type odometry: also match the master "
               "INS attitude (its body axes taken as the IMU's; off: its velocity only)."),
     ParamSpec("navsat_topic", "", "sensor_msgs/NavSatFix topic for latitude, longitude and "
@@ -392,6 +395,7 @@ def motion_config_from_params(values: dict[str, Any]):
         lever_arm=tuple(float(x) for x in m["lever_arm"]),
         velocity_noise=float(m["velocity_noise"]),
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
+        nhc_axis=int(m["lateral_axis"]),
         attitude_matching=bool(m["attitude_matching"]),
         initial_rpy_deg=_initial_rpy(m),
         # a moving vehicle turns and rolls faster than a parked base sways, and an IMU hole
