@@ -349,6 +349,8 @@ def test_refusals_and_restarts():
     assert al.rejected["nonfinite"] >= 1 and al.rejected["gravity_removed"] == 1
     assert not s.feed(float(r.t[1205]), r.gyro[1210], r.accel[1210])   # behind
     assert al.rejected["stamp_backwards"] == 1
+    al.reject_undecodable()                       # align_node: bytes that are no Imu
+    assert al.rejected["undecodable"] == 1 and events[-1].value == "undecodable"
     # a gap above max_gap restarts
     restarts = al.events.get("started", 0)
     assert not s.feed(float(r.t[1210] + 5.0), r.gyro[1210], r.accel[1210])

@@ -139,7 +139,6 @@ def make_node_class():
             self.motion = self.reference.enabled
             self.session = AlignmentSession(self.aligner, on_event=self._on_event)
             self.stamp_clock = StampClock()
-            self._undecodable = 0          # in-motion: counted here (the Aligner counts its own)
             self.last_header = None
             self._rx_count = 0
             self._rate_mark = (time.monotonic(), 0)
@@ -284,11 +283,7 @@ def make_node_class():
                         msg = deserialize_message(raw, Imu)
                     except Exception:            # malformed bytes: count, warn, keep going
                         self._rx_count += 1
-                        if self.motion:
-                            self._undecodable += 1
-                            self._warn_rejected("undecodable")
-                        else:
-                            self.aligner.reject_undecodable()   # warned through _on_event
+                        self.aligner.reject_undecodable()   # warned through _on_event
                         return
                     self._on_imu(msg)
                     return
@@ -430,7 +425,7 @@ def make_node_class():
                 level, message, values, self._rejected_seen = motion_diagnostics(
                     al, self._input_rate, self._rejected_seen, self.session.resets,
                     self.session.last_reset_reason, self.feed, self.sub_velocity.topic_name,
-                    silent, self._undecodable)
+                    silent)
             else:
                 level, message, values, self._rejected_seen = node_diagnostics(
                     al, self._input_rate, self._rejected_seen, self.session.resets,

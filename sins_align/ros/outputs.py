@@ -147,16 +147,15 @@ def bias_estimates(est) -> tuple[list[float], list[float]]:
 
 
 def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, resets: int,
-                       last_reset_reason: str, feed, topic: str, silent_s: float | None,
-                       undecodable: int = 0) -> tuple[int, str, list, int]:
+                       last_reset_reason: str, feed, topic: str,
+                       silent_s: float | None) -> tuple[int, str, list, int]:
     """align_node's diagnostics for an in-motion estimator (the public interface only:
     ``status``, ``aligned``, ``heading_observable``, ``std_enu_deg``, ``rejected``,
     ``events``, ``bias_gyro``, ``bias_accel``, ``velocity``, ``t_last``) plus what the
     :class:`~sins_align.ros.reference.ReferenceFeed` counted.
 
     ``silent_s``: how long the velocity topic has been silent while IMU data came (None:
-    not silent); the status is then WARN and says so. ``undecodable``: Imu messages the node
-    could not decode (counted with the rejected samples). As :func:`node_diagnostics`, WARN
+    not silent); the status is then WARN and says so. As :func:`node_diagnostics`, WARN
     when inputs were rejected since the last report (``rejected_seen`` = the total then).
 
     Returns level, message, values and the rejected total now.
@@ -182,7 +181,7 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
         *((f"bias_gyro_{a}_deg_h", f"{x:.4f}") for a, x in zip("xyz", bg)),
         *((f"bias_accel_{a}_mg", f"{x:.4f}") for a, x in zip("xyz", ba)),
         *((f"velocity_{a}_mps", f"{x:.4f}") for a, x in zip("enu", v)),
-        ("samples_rejected", str(sum(est.rejected.values()) + undecodable)),
+        ("samples_rejected", str(sum(est.rejected.values()))),
         ("input_rate_hz", "" if input_rate_hz is None else f"{input_rate_hz:.2f}"),
         ("velocity_topic", topic),
         ("velocity_messages", str(counts["velocity_received"])),
@@ -197,8 +196,6 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
     values += [(f"rejected_by_estimator_{k}", str(n))
                for k, n in counts["rejected_by_estimator"].items()]
     rejected_by = dict(est.rejected)
-    if undecodable:
-        rejected_by["undecodable"] = rejected_by.get("undecodable", 0) + undecodable
     values += [(f"rejected_{k}", str(n)) for k, n in sorted(rejected_by.items())]
     values += [(f"event_{k}", str(n)) for k, n in sorted(est.events.items())]
     if silent_s is not None:

@@ -39,10 +39,9 @@ from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion.config import MotionConfig
 from sins_align.estimators.in_motion.feedback import LqrFeedback, lqr_gain
-from sins_align.estimators.readout import AttitudeReadout
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel)
-from sins_align.estimators.quasi_static.aligner import AlignmentEvent
+from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 
 __all__ = ["MotionAligner", "MOTION_REJECT_REASONS", "MOTION_STATES"]
 
@@ -57,6 +56,7 @@ MOTION_REJECT_REASONS = (
     "rate_too_high",              # IMU: |w| > max_angular_rate
     "measurement_too_late",       # a measurement stamped more than max_measurement_lag back
     "measurement_invalid",        # a measurement with a bad covariance or shape
+    "undecodable",                # (align_node) a message whose bytes could not be decoded
 )
 
 MOTION_STATES = ("waiting", "aligning", "aligned")
@@ -73,7 +73,7 @@ HYPOTHESIS_MIN_WEIGHT = 1e-6
 HYPOTHESIS_COLLAPSE = 0.999
 
 
-class MotionAligner(AttitudeReadout):
+class MotionAligner(EventSource, AttitudeReadout):
     """Streaming in-motion alignment of one IMU with a velocity reference.
 
     Examples
@@ -99,21 +99,6 @@ class MotionAligner(AttitudeReadout):
         self.reset("start")
 
     # ------------------------------------------------------------------ lifecycle
-    def subscribe(self, callback: Callable[[AlignmentEvent], None]) -> None:
-        """Call ``callback(event)`` for every event (aligned flag, restart, rejection)."""
-        self._listeners.append(callback)
-
-    def _emit(self, kind: str, stamp, value) -> None:
-        if self._listeners:
-            ev = AlignmentEvent(kind, stamp, value)
-            for cb in self._listeners:
-                cb(ev)
-
-    def _reject(self, reason: str, stamp) -> None:
-        self.rejected[reason] += 1
-        self.last_reject = reason
-        self._emit("rejected", stamp, reason)
-
     def reset(self, reason: str = "reset") -> None:
         """Forget the alignment and the time line; keep the configuration, subscriptions and
         the life counters ``rejected`` and ``events``."""

@@ -29,13 +29,12 @@ import math
 import statistics
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from sins_align.core.earth import gravity_enu
 from sins_align.estimators.quasi_static.config import AlignConfig
-from sins_align.estimators.readout import AttitudeReadout
+from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 from sins_align.estimators.quasi_static.fast_path import FAST_MIN_BLOCK
 from sins_align.estimators.quasi_static.filter import AlignmentFilter
 from sins_align.estimators.quasi_static.monitors import RecentMotion, UnitsMonitor
@@ -77,16 +76,7 @@ EVENT_KINDS = (
 )
 
 
-@dataclass(frozen=True)
-class AlignmentEvent:
-    """One event of an :class:`Aligner`: ``kind`` (EVENT_KINDS), ``stamp`` (s, of the sample
-    being processed; None when there is none) and ``value`` (the new flag, or a reason)."""
-    kind: str
-    stamp: float | None
-    value: bool | str
-
-
-class Aligner(AttitudeReadout):
+class Aligner(EventSource, AttitudeReadout):
     """Streaming SINS self-alignment on a quasi-static base (one IMU).
 
     Feed samples with :meth:`update` (one sample or a block); read the result at any time
@@ -116,18 +106,6 @@ class Aligner(AttitudeReadout):
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
-    def subscribe(self, callback: Callable[[AlignmentEvent], None]) -> None:
-        """Call ``callback(event)`` for every :class:`AlignmentEvent` from now on (the
-        aligned flag changed, a restart, a rejected sample), in the order they happen, on
-        the per-sample and the block path alike. Subscriptions survive :meth:`reset`."""
-        self._listeners.append(callback)
-
-    def _emit(self, kind: str, stamp: float | None, value) -> None:
-        if self._listeners:
-            event = AlignmentEvent(kind, stamp, value)
-            for callback in self._listeners:
-                callback(event)
-
     def reset(self, reason: str = "reset"):
         """Forget the alignment and the time line (``samples_used`` counts this run's
         samples); keep the configuration, the subscriptions and the counters ``rejected``
@@ -351,17 +329,6 @@ class Aligner(AttitudeReadout):
         self.t_last = float(t[-1])
         self._refresh_aligned()
         return len(t)
-
-    def _reject(self, reason: str, stamp: float | None = None) -> int:
-        self.rejected[reason] += 1
-        self.last_reject = reason
-        self._emit("rejected", stamp, reason)
-        return 0
-
-    def reject_undecodable(self):
-        """Count an input message that could not be decoded into a sample at all (reason
-        ``undecodable``); the state is not touched."""
-        self._reject("undecodable")
 
     def _static_reason(self, w: np.ndarray, f: np.ndarray) -> str | None:
         """The reason to reject a sample on its own values (no time line needed), or None."""
