@@ -13,7 +13,7 @@ from sins_align.core.specs import DEG, DPH, DPSH, UG, SensorSpecs
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion import (InvariantEKF, MotionAligner, MotionConfig,
                                              NoiseModel)
-from sins_align.estimators.in_motion.filter import propagate_reference
+from sins_align.estimators.in_motion.filter import propagate_reference, sample_transition
 from sins_align.estimators.session import AlignmentSession
 from sins_align.sim.trajectory import (SEED003_SPECS, Segment, Trajectory, car_with_turn,
                                        simulate_trajectory, uav_seed003)
@@ -59,19 +59,9 @@ def _error(truth, est):
 
 def _transition_product(ekf, dt, gyro, accel):
     """The product of the per-sample transitions the filter's model uses."""
-    Phi = np.eye(12)
+    Phi = np.eye(ekf.n)
     for d, g, a in zip(dt, gyro, accel):
-        w, f = g - ekf.bg[0], a - ekf.ba[0]
-        rho, h = so3_exp(w * d), so3_exp(0.5 * w * d)
-        dV = h @ f * d
-        P = np.eye(12)
-        P[0:3, 0:3] = rho.T
-        P[0:3, 6:9] = -d * rho.T @ h
-        P[3:6, 0:3] = -rho.T @ skew(dV)
-        P[3:6, 3:6] = rho.T
-        P[3:6, 6:9] = 0.5 * d * rho.T @ skew(dV) @ h
-        P[3:6, 9:12] = -d * rho.T @ h
-        Phi = P @ Phi
+        Phi = sample_transition(ekf, d, g, a) @ Phi
     return Phi
 
 

@@ -283,9 +283,10 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self._init_buf.popleft()
             if self._init_buf[-1][0] - self._init_buf[0][0] < 0.999 * c.init_time:
                 continue
-            meas = [p for p in self._pending if p[2] == "velocity" and p[0] <= t[i]]
+            # the pending list is sorted by stamp: those up to this sample
+            reached = self._pending[:bisect.bisect_right(self._pending, (float(t[i]), math.inf))]
+            meas = [p for p in reached if p[2] == "velocity"]
             if not meas:
-                # keep only measurements that can still be used
                 continue
             self._start(float(t[i]), meas)
             return i + 1
@@ -306,15 +307,12 @@ class MotionAligner(EventSource, AttitudeReadout):
         K = 1 if guess else c.heading_hypotheses
         yaws = yaw + np.arange(K) * (2.0 * math.pi / K)
         Cs = np.array([_level_dcm(up, y) for y in yaws])
-        C = Cs[0]
         # velocity: the newest measurement up to t0; the older ones go
         stamp, _, _, (z, R) = meas[-1]
-        self._pending = [p for p in self._pending if not (p[2] == "velocity" and p[0] <= t0)]
         self._pending = [p for p in self._pending if p[0] > t0]
         # horizontal acceleration seen by the reference during the averaging: tilt bound
         vs = [p[3][0] for p in meas if p[0] >= buf[0][0] - 0.5]
         ts = [p[0] for p in meas if p[0] >= buf[0][0] - 0.5]
-        a_h = 0.0
         if len(vs) >= 2 and ts[-1] > ts[0]:
             dv = np.nan_to_num(np.asarray(vs[-1]) - np.asarray(vs[0]))
             a_h = float(np.hypot(dv[0], dv[1])) / (ts[-1] - ts[0])
@@ -339,10 +337,9 @@ class MotionAligner(EventSource, AttitudeReadout):
                                       ("accel_scale", c.accel_scale_std > 0))
                       if on)
         n = 12 + 3 * len(extra)
-        P = np.zeros((n, n))
+        P = np.zeros((K, n, n))
         # attitude: ENU covariance diag(level, level, heading) to body axes
         Pn = np.diag([level_std ** 2, level_std ** 2, head_std ** 2])
-        P = np.tile(P, (K, 1, 1))
         Pv = np.diag(v_var)
         for i in range(K):
             P[i][IPHI, IPHI] = Cs[i].T @ Pn @ Cs[i]
@@ -356,7 +353,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             P[:, i:i + 3, i:i + 3] = np.eye(3) * std ** 2
             i += 3
         lat, lon, h = self.position
-        self.ekf = InvariantEKF(NavState(C, z, lat, lon, h), P, self.noise, c.lever_arm, C=Cs,
+        self.ekf = InvariantEKF(NavState(Cs[0], z, lat, lon, h), P, self.noise, c.lever_arm, C=Cs,
                                 extra=extra)
         if c.feedback == "lqr":
             self.ekf.schedule = LqrFeedback(lqr_gain(n, lat, g, c.lqr_time_constant))

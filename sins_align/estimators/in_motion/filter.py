@@ -58,8 +58,9 @@ nu, ``q_b dt`` on the biases); its sum over the run is also closed form
 the attitude and velocity within one run, of order q_b T^3, is left out; runs are at most
 :data:`MAX_RUN` s).
 
-The mechanization of the run is vectorised the same way: ``Gamma_j`` by a parallel prefix
-product of quaternions, the navigation frame's rotation ``w_in`` and gravity and Coriolis held
+The mechanization of the run is vectorised the same way: ``Gamma_j`` by the prefix product
+of quaternions of :func:`sins_align.core.preint.prefix_rotations` (the quasi-static fast
+path's), the navigation frame's rotation ``w_in`` and gravity and Coriolis held
 at the run's start (their change within :data:`MAX_RUN` s moves the attitude by < 1e-8 rad);
 :func:`propagate_reference` is the per-sample reference it is tested against.
 
@@ -86,11 +87,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from sins_align.core.earth import GRAVITY_PER_METRE, OMEGA_IE, normal_gravity, radii
+from sins_align.core.preint import prefix_rotations
 from sins_align.core.rotation import quat_from_rotvec, skew, so3_exp, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 
-__all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "IPHI", "INU",
-           "IBG", "IBA", "EXTRA_STATES"]
+__all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "sample_transition",
+           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES"]
 
 #: longest run of samples propagated in one closed-form step, s
 MAX_RUN = 1.0
@@ -185,17 +187,6 @@ def _w_in(v, lat, h):
     ve = v[..., 0] / (rn + h)
     w_en = np.stack([-v[..., 1] / (rm + h), ve, ve * sl / cl], -1)
     return w_ie, w_en
-
-
-def _prefix_quat(q: np.ndarray) -> np.ndarray:
-    """Inclusive prefix products q_1 q_2 ... q_j along axis 1 of (K, m, 4) quaternions."""
-    q = q.copy()
-    s = 1
-    m = q.shape[1]
-    while s < m:
-        q[:, s:] = _qmul(q[:, :-s], q[:, s:])
-        s *= 2
-    return q
 
 
 def _mT(a):
@@ -319,10 +310,9 @@ class InvariantEKF:
         w = (gyro - self.bg[:, None]) / (1.0 + self.sf[:, None])    # (K, m, 3)
         f = (accel - self.ba[:, None]) / (1.0 + self.sa[:, None])
         rv = w * dt[None, :, None]
-        q = quat_from_rotvec(np.concatenate([rv, 0.5 * rv], 0))
         K = len(w)
-        q_full, q_half = q[:K], q[K:]
-        G = _prefix_quat(q_full)                     # Gamma_j, j = 1..m
+        q_half = quat_from_rotvec(0.5 * rv)
+        G = np.stack(prefix_rotations(dt, w), -1)    # Gamma_j, j = 1..m
         Gprev = np.concatenate([np.broadcast_to([0.0, 0.0, 0.0, 1.0], (K, 1, 4)), G[:, :-1]], 1)
         R_mid = _dcm(_qmul(Gprev, q_half))           # (K, m, 3, 3)
         Gm = _dcm(G[:, -1] / np.linalg.norm(G[:, -1], axis=-1, keepdims=True))
@@ -525,31 +515,41 @@ class InvariantEKF:
         return self._apply(y, H, np.asarray(R, dtype=float), nis_limit)
 
 
+def sample_transition(ekf: InvariantEKF, dt: float, gyro, accel) -> np.ndarray:
+    """The (n, n) transition of filter 0 of the bank over one sample (the per-sample map the
+    closed-form runs are the product of; see the module docstring)."""
+    w = (np.asarray(gyro, float) - ekf.bg[0]) / (1.0 + ekf.sf[0])
+    f = (np.asarray(accel, float) - ekf.ba[0]) / (1.0 + ekf.sa[0])
+    rho = so3_exp(w * dt)
+    half = so3_exp(0.5 * w * dt)
+    dV = half @ f * dt
+    Phi = np.eye(ekf.n)
+    Phi[IPHI, IPHI] = rho.T
+    Phi[IPHI, IBG] = -dt * rho.T @ half
+    Phi[INU, IPHI] = -rho.T @ skew(dV)
+    Phi[INU, INU] = rho.T
+    Phi[INU, IBG] = 0.5 * dt * rho.T @ skew(dV) @ half
+    Phi[INU, IBA] = -dt * rho.T @ half
+    if ekf.i_sf is not None:
+        Phi[IPHI, ekf.i_sf] = Phi[IPHI, IBG] @ np.diag(w)
+        Phi[INU, ekf.i_sf] = Phi[INU, IBG] @ np.diag(w)
+    if ekf.i_sa is not None:
+        Phi[INU, ekf.i_sa] = Phi[INU, IBA] @ np.diag(f)
+    return Phi
+
+
 def propagate_reference(ekf: InvariantEKF, dt, gyro, accel) -> None:
     """Per-sample reference of :meth:`InvariantEKF.propagate` (filter 0 of the bank): the
     strapdown mechanization (:func:`sins_align.core.strapdown.mechanize`) and each sample's
-    transition and noise applied one after the other. Slow; for tests."""
+    transition (:func:`sample_transition`) and noise applied one after the other. Slow; for
+    tests."""
     nz = ekf.noise
     n = ekf.n
     for d, g, a in zip(np.asarray(dt, float).reshape(-1), np.asarray(gyro, float).reshape(-1, 3),
                        np.asarray(accel, float).reshape(-1, 3)):
+        Phi = sample_transition(ekf, d, g, a)
         w = (g - ekf.bg[0]) / (1.0 + ekf.sf[0])
         f = (a - ekf.ba[0]) / (1.0 + ekf.sa[0])
-        rho = so3_exp(w * d)
-        half = so3_exp(0.5 * w * d)
-        dV = half @ f * d
-        Phi = np.eye(n)
-        Phi[IPHI, IPHI] = rho.T
-        Phi[IPHI, IBG] = -d * rho.T @ half
-        Phi[INU, IPHI] = -rho.T @ skew(dV)
-        Phi[INU, INU] = rho.T
-        Phi[INU, IBG] = 0.5 * d * rho.T @ skew(dV) @ half
-        Phi[INU, IBA] = -d * rho.T @ half
-        if ekf.i_sf is not None:
-            Phi[IPHI, ekf.i_sf] = Phi[IPHI, IBG] @ np.diag(w)
-            Phi[INU, ekf.i_sf] = Phi[INU, IBG] @ np.diag(w)
-        if ekf.i_sa is not None:
-            Phi[INU, ekf.i_sa] = Phi[INU, IBA] @ np.diag(f)
         Q = np.zeros((n, n))
         Q[IPHI, IPHI] = nz.gyro_arw ** 2 * d * _I3
         Q[INU, INU] = nz.accel_vrw ** 2 * d * _I3
