@@ -235,6 +235,15 @@ def _check_args(args):
                        f"is undefined at the poles), got {args.latitude:g}")
 
 
+def _imu_and_truth_connections(writer, msgs: Messages) -> tuple:
+    """The IMU topic (sensor-data QoS, as imu_sim_node offers it) and the truth topic."""
+    c_imu = writer.add_connection("/" + RAW_TOPIC, Messages.IMU, typestore=msgs.store,
+                                  offered_qos_profiles=[qos_profile(reliable=False, depth=5)])
+    c_truth = writer.add_connection("/" + TRUTH_TOPIC, Messages.QUATERNION_STAMPED,
+                                    typestore=msgs.store, offered_qos_profiles=[qos_profile()])
+    return c_imu, c_truth
+
+
 def write_sim_bag(out: Path, args, specs) -> int:
     """Simulate and write the bag at ``out`` (must not exist). Returns the sample count."""
     from sins_align.sim.simulator import ImuSimulator
@@ -247,11 +256,7 @@ def write_sim_bag(out: Path, args, specs) -> int:
     msgs = Messages()
     writer = open_writer(out, args.storage, args.compression)
     try:
-        c_imu = writer.add_connection("/" + RAW_TOPIC, Messages.IMU, typestore=msgs.store,
-                                      offered_qos_profiles=[qos_profile(reliable=False, depth=5)])
-        c_truth = writer.add_connection("/" + TRUTH_TOPIC, Messages.QUATERNION_STAMPED,
-                                        typestore=msgs.store,
-                                        offered_qos_profiles=[qos_profile()])
+        c_imu, c_truth = _imu_and_truth_connections(writer, msgs)
         for key, val in (("latitude_deg", args.latitude), ("height_m", args.height),
                          ("rpy_deg", list(args.rpy)), ("grade", args.grade),
                          ("specs_si", [specs.gyro_bias, specs.gyro_arw, specs.accel_bias,
@@ -320,11 +325,7 @@ def write_moving_bag(out: Path, args, specs) -> int:
     msgs = Messages()
     writer = open_writer(out, args.storage, args.compression)
     try:
-        c_imu = writer.add_connection("/" + RAW_TOPIC, Messages.IMU, typestore=msgs.store,
-                                      offered_qos_profiles=[qos_profile(reliable=False, depth=5)])
-        c_truth = writer.add_connection("/" + TRUTH_TOPIC, Messages.QUATERNION_STAMPED,
-                                        typestore=msgs.store,
-                                        offered_qos_profiles=[qos_profile()])
+        c_imu, c_truth = _imu_and_truth_connections(writer, msgs)
         c_vel = writer.add_connection("/" + GNSS_VELOCITY_TOPIC,
                                       ref.TWIST_WITH_COVARIANCE_STAMPED, typestore=msgs.store,
                                       offered_qos_profiles=[qos_profile()])
