@@ -19,10 +19,11 @@ import time
 import numpy as np
 import pytest
 
+from geodesy import C_en, ecef
 from sins_align.core.earth import OMEGA_IE, earth_rate_enu, gravity
 from sins_align.core.rotation import attitude_error, dcm_from_rpy, so3_exp, so3_log
 from sins_align.core.specs import DEG, grade_specs
-from sins_align.core.strapdown import (WGS84_A, WGS84_E2, NavState, mechanize, mechanize_block,
+from sins_align.core.strapdown import (WGS84_A, NavState, mechanize, mechanize_block,
                                        normal_gravity, radii, transport_rate)
 from sins_align.sim.trajectory import (SEED003_SPECS, Segment, Trajectory,
                                        simulate_trajectory, trajectory_preset)
@@ -150,20 +151,6 @@ def test_tilt_error_sign():
         assert tr.v[-1, axis] == pytest.approx(sign * g * 1e-3 * 20.0, rel=2e-3)
 
 
-def _ecef(lat, lon, h):
-    rn = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-    return np.stack([(rn + h) * np.cos(lat) * np.cos(lon), (rn + h) * np.cos(lat) * np.sin(lon),
-                     (rn * (1.0 - WGS84_E2) + h) * np.sin(lat)], -1)
-
-
-def _C_en(lat, lon):
-    """ENU-to-ECEF rotation, columns East, North, Up."""
-    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    z = np.zeros_like(lat)
-    return np.stack([np.stack([-so, co, z], -1), np.stack([-sl * co, -sl * so, cl], -1),
-                     np.stack([cl * co, cl * so, sl], -1)], -1)
-
-
 def test_simulator_against_ecef_kinematics():
     """The simulated sensors checked against kinematics computed independently in ECEF and
     inertial space (finite differences of the true position and attitude), on an aircraft at
@@ -175,8 +162,8 @@ def test_simulator_against_ecef_kinematics():
                       speed=250.0)
     r = simulate_trajectory(traj, 100.0)
     dt = r.dt
-    re = _ecef(r.lat, r.lon, r.h)
-    Cen = _C_en(r.lat, r.lon)
+    re = ecef(r.lat, r.lon, r.h)
+    Cen = C_en(r.lat, r.lon)
     k = np.arange(20, len(r.t) - 20, 37)
     s = 5                                               # stencil step: 0.05 s
     rp, rpp, rm_, rmm = re[k + s], re[k + 2 * s], re[k - s], re[k - 2 * s]

@@ -15,10 +15,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from geodesy import C_en, ecef
 from sins_align.core.earth import gravity
 from sins_align.core.rotation import attitude_error, rpy_from_dcm
 from sins_align.core.specs import DEG, grade_specs
-from sins_align.core.strapdown import WGS84_A, WGS84_E2, mechanize_block, radii
+from sins_align.core.strapdown import mechanize_block, radii
 from sins_align.sim.trajectory import (PRESETS, UAV_VIBRATION, Segment, Trajectory, Vibration,
                                        Wave, simulate_trajectory, trajectory_preset)
 
@@ -243,36 +244,22 @@ def test_gnss_latency_dropouts_and_missing_vertical():
     np.testing.assert_array_equal(r.gnss_v_true, ref.gnss_v_true[i])
 
 
-def _ecef(llh):
-    lat, lon, h = llh[:, 0], llh[:, 1], llh[:, 2]
-    rn = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-    return np.stack([(rn + h) * np.cos(lat) * np.cos(lon), (rn + h) * np.cos(lat) * np.sin(lon),
-                     (rn * (1.0 - WGS84_E2) + h) * np.sin(lat)], -1)
-
-
-def _C_en(lat, lon):
-    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    z = np.zeros_like(lat)
-    return np.stack([np.stack([-so, co, z], -1), np.stack([-sl * co, -sl * so, cl], -1),
-                     np.stack([cl * co, cl * so, sl], -1)], -1)
-
-
 def test_gnss_position_at_the_antenna_with_noise():
     lever = np.array([2.0, -1.0, 8.0])                # a ship's mast
     r = simulate_trajectory(trajectory_preset("ship_under_way"), 100.0, gnss_rate=10.0,
                             lever_arm=lever, gnss_pos_sigma=1.5, seed=9)
     i = r.gnss_index
-    imu = _ecef(np.stack([r.lat[i], r.lon[i], r.h[i]], -1))
+    imu = ecef(r.lat[i], r.lon[i], r.h[i])
     # the antenna is l^b away from the IMU, in the direction C_e^n C_b^n l^b (checked in ECEF)
-    d_ecef = _ecef(r.gnss_llh_true) - imu
-    expect = np.einsum("nij,nj->ni", _C_en(r.lat[i], r.lon[i]),
+    d_ecef = ecef(*r.gnss_llh_true.T) - imu
+    expect = np.einsum("nij,nj->ni", C_en(r.lat[i], r.lon[i]),
                        np.einsum("nij,j->ni", r.C[i], lever))
     np.testing.assert_allclose(d_ecef, expect, rtol=0, atol=1e-5)
     # the sway moves the antenna: +-5 deg of roll at 8 m is +-0.7 m
     assert np.ptp(np.einsum("nij,j->ni", r.C[i], lever)[:, 0] - lever[0]) > 0.5
     # noise: N(0, 1.5^2) per ENU axis
-    e = np.einsum("nji,nj->ni", _C_en(r.lat[i], r.lon[i]),
-                  _ecef(r.gnss_llh) - _ecef(r.gnss_llh_true))
+    e = np.einsum("nji,nj->ni", C_en(r.lat[i], r.lon[i]),
+                  ecef(*r.gnss_llh.T) - ecef(*r.gnss_llh_true.T))
     assert np.all(np.abs(e.std(axis=0) / 1.5 - 1.0) < 0.06), e.std(axis=0)
     assert np.all(np.abs(e.mean(axis=0)) < 4 * 1.5 / np.sqrt(len(e)))
     clean = simulate_trajectory(trajectory_preset("ship_under_way"), 100.0, lever_arm=lever)
