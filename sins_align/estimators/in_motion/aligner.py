@@ -120,6 +120,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
         self._next_nhc: float | None = None
         self._nis: deque = deque()               # (t, nis per dof, dof)
+        self._nis_sum = [0.0, 0]                 # their sums of nis * dof and of dof
         self._replaying = False
         self.time_to_aligned: float | None = None
         self.heading_observable = False
@@ -180,9 +181,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         """Mean NIS per degree of freedom over the last ``aligned_nis_window`` s (nan: none)."""
         if not self._nis:
             return math.nan
-        num = sum(n * d for _, n, d in self._nis)
-        den = sum(d for _, _, d in self._nis)
-        return num / den
+        return self._nis_sum[0] / self._nis_sum[1]
 
     @property
     def aligned(self) -> bool:
@@ -357,8 +356,8 @@ class MotionAligner(EventSource, AttitudeReadout):
                                 extra=extra)
         if c.feedback == "lqr":
             self.ekf.schedule = LqrFeedback(lqr_gain(n, lat, g, c.lqr_time_constant))
-        self.ekf.w_last[:] = ws[-1]
-        self.ekf.f_last[:] = fs[-1]
+        self.ekf.w_last = np.tile(ws[-1], (K, 1))
+        self.ekf.f_last = np.tile(fs[-1], (K, 1))
         self._logw = np.full(K, -math.log(K))
         self._prior_head_std = head_std
         self._best = 0
@@ -428,7 +427,9 @@ class MotionAligner(EventSource, AttitudeReadout):
             return False
         self.position = (lat_deg * DEG, lon_deg * DEG, float(height_m))
         if self.ekf is not None:
-            self.ekf.lat[:], self.ekf.lon[:], self.ekf.h[:] = self.position
+            # (new arrays: the stored states share theirs with the filter)
+            K = self.ekf.K
+            self.ekf.lat, self.ekf.lon, self.ekf.h = (np.full(K, x) for x in self.position)
         self.events["position"] += 1
         return True
 
@@ -465,7 +466,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         t_s, ekf, nhc, logw, best = self._snaps[k]
         while len(self._snaps) > k + 1:
             self._snaps.pop()
-        self.ekf = ekf.copy()
+        self.ekf = ekf.snapshot()
         self._next_nhc = nhc
         self._logw = logw.copy()
         self._best = best
@@ -474,6 +475,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         for a in redo + [item]:
             bisect.insort(self._pending, a)
         self._nis = deque(x for x in self._nis if x[0] <= t_s)
+        self._nis_sum = [sum(n * d for _, n, d in self._nis), sum(d for *_, d in self._nis)]
         tt, ww, ff = self._history_after(t_s)
         self.events["rewinds"] += 1
         self._replaying = True
@@ -499,20 +501,35 @@ class MotionAligner(EventSource, AttitudeReadout):
     # ------------------------------------------------------------------ the engine
     def _process(self, prev, t, w, f):
         """Propagate accepted samples t (after ``prev``) and apply the pending measurements
-        and constraints whose stamps they reach, each after the sample that reaches it."""
+        and constraints whose stamps they reach, each after the sample that reaches it.
+
+        The runs between those events are known before anything is applied (the events'
+        times do not depend on the measurements' values), so the filter computes their
+        sums ahead, many at once (:meth:`InvariantEKF.propagate_runs`)."""
         c = self.config
         n = len(t)
-        k = 0
+        if n == 0:
+            return
+        dts = np.diff(np.concatenate(([prev], t)))
+        # the runs: each ends at the first sample reaching an event (or at the last one)
+        stamps = [p[0] for p in self._pending]
+        nhc = self._next_nhc
+        ends, j, k = [], 0, 0
         while k < n:
-            # the next event: a pending measurement or an NHC time
-            t_ev = self._pending[0][0] if self._pending else math.inf
-            if self._next_nhc is not None:
-                t_ev = min(t_ev, self._next_nhc)
-            e = int(np.searchsorted(t, t_ev, "left")) + 1   # first sample with t >= t_ev
-            e = min(max(e, k + 1), n) if t_ev <= t[-1] else n
-            p0 = prev if k == 0 else t[k - 1]
-            dts = np.diff(np.concatenate(([p0], t[k:e])))
-            self.ekf.propagate(dts, w[k:e], f[k:e])
+            t_ev = stamps[j] if j < len(stamps) else math.inf
+            if nhc is not None:
+                t_ev = min(t_ev, nhc)
+            e = n if t_ev > t[-1] else min(max(int(np.searchsorted(t, t_ev, "left")) + 1,
+                                               k + 1), n)
+            ends.append(e)
+            t_now = float(t[e - 1])
+            while j < len(stamps) and stamps[j] <= t_now:
+                j += 1
+            if nhc is not None and nhc <= t_now:
+                nhc = t_now + c.nhc_period
+            k = e
+        for r in self.ekf.propagate_runs(dts, w, f, ends):
+            e = ends[r]
             t_now = float(t[e - 1])
             while self._pending and self._pending[0][0] <= t_now:
                 item = self._pending.pop(0)
@@ -525,7 +542,6 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self._next_nhc = t_now + c.nhc_period
             if e < n:
                 self._snapshot(t_now)
-            k = e
 
     def _apply(self, item, t_now):
         ts, _, kind, payload = item
@@ -534,10 +550,11 @@ class MotionAligner(EventSource, AttitudeReadout):
             z, R = payload
             # the measurement is of the instant ts, the state of t_now (>= ts, within a
             # sample): move it by the acceleration over the difference
-            b = self._best
-            acc = ekf.C[b] @ ekf.f_last[b]
-            acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
-            z = z + (t_now - ts) * acc
+            if t_now > ts:
+                b = self._best
+                acc = ekf.C[b] @ ekf.f_last[b]
+                acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
+                z = z + (t_now - ts) * acc
             nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate)
             self.events["velocity"] += 1
             if nis[self._best] > self.config.nis_inflate:
@@ -571,7 +588,9 @@ class MotionAligner(EventSource, AttitudeReadout):
                 wm = np.exp(lw[same] - np.logaddexp(lw[best], np.logaddexp.reduce(lw[same])))
                 spread = np.einsum("k,ki,kj->ij", wm, d[same], d[same])        # ENU
                 Cb = self.ekf.C[best]
-                self.ekf.P[best][IPHI, IPHI] += Cb.T @ spread @ Cb
+                P = self.ekf.P.copy()           # (the stored states share the old one)
+                P[best][IPHI, IPHI] += Cb.T @ spread @ Cb
+                self.ekf.P = P
                 lw[best] = np.logaddexp(lw[best], np.logaddexp.reduce(lw[same]))
                 keep &= ~same
                 self.events["hypotheses_merged"] += int(same.sum())
@@ -588,10 +607,18 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._nis_add(t, float(nis[self._best]), dof)
 
     def _nis_add(self, t, nis, dof):
-        self._nis.append((t, min(nis, 1e6), dof))
+        nis = min(nis, 1e6)
+        self._nis.append((t, nis, dof))
+        s = self._nis_sum
+        s[0] += nis * dof
+        s[1] += dof
         w = self.config.aligned_nis_window
         while self._nis and self._nis[0][0] < t - w:
-            self._nis.popleft()
+            _, n, d = self._nis.popleft()
+            s[0] -= n * d
+            s[1] -= d
+        if len(self._nis) == 1 or s[0] < 0.0:      # no rounding left behind
+            s[0] = sum(n * d for _, n, d in self._nis)
 
     def _snapshot(self, t=None):
         if self.ekf is None:
@@ -602,7 +629,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._snap_now(t)
 
     def _snap_now(self, t):
-        self._snaps.append((t, self.ekf.copy(), self._next_nhc, self._logw.copy(), self._best))
+        self._snaps.append((t, self.ekf.snapshot(), self._next_nhc, self._logw.copy(),
+                            self._best))
 
     def _prune(self):
         keep = self.t_last - self.config.max_measurement_lag - _HISTORY_MARGIN

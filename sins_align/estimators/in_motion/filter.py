@@ -50,19 +50,25 @@ specific force is the one of the middle too). Their product over m samples is, i
     phi_m = Gamma_m^T (phi_0 - S_m zeta_g)
     nu_m  = Gamma_m^T (nu_0 - (V x) phi_0 + M zeta_g - S_m zeta_a)
 
-which :meth:`InvariantEKF.propagate` evaluates with cumulative sums (exactly the product of
-the per-sample maps). White noise enters after every sample (``q_g dt`` on phi, ``q_a dt`` on
+which :mod:`~sins_align.estimators.in_motion.runs` evaluates with cumulative sums (exactly
+the product of the per-sample maps), for many runs at once: the runs up to the next few
+measurements are known before they are applied, and their sums depend only on the samples
+and the biases. A measurement that changes the biases between the pass and a run is
+applied to the run to first order (the transition above is that Jacobian), and the pass is
+recomputed once the neglected term could reach 1e-10 rad (pre-integration with bias
+Jacobians). White noise enters after every sample (``q_g dt`` on phi, ``q_a dt`` on
 nu, ``q_b dt`` on the biases); its sum over the run is also closed form
 (``D_j = V - V_j``): ``Cov(phi) = q_g T``, ``Cov(phi, nu) = Gamma^T q_g (sum dt_j D_j x) Gamma``,
 ``Cov(nu) = q_a T + Gamma^T q_g sum dt_j (|D_j|^2 I - D_j D_j^T) Gamma`` (bias noise entering
 the attitude and velocity within one run, of order q_b T^3, is left out; runs are at most
 :data:`MAX_RUN` s).
 
-The mechanization of the run is vectorised the same way: ``Gamma_j`` by the prefix product
-of quaternions of :func:`sins_align.core.preint.prefix_rotations` (the quasi-static fast
-path's), the navigation frame's rotation ``w_in`` and gravity and Coriolis held
-at the run's start (their change within :data:`MAX_RUN` s moves the attitude by < 1e-8 rad);
-:func:`propagate_reference` is the per-sample reference it is tested against.
+The mechanization of a run (:func:`~sins_align.estimators.in_motion.runs.advance_navigation`,
+scalar arithmetic, filter by filter) uses the run's sums: the navigation frame's rotation
+``w_in``, gravity and Coriolis are held at the run's start, Coriolis applied to the integral
+of the velocity and the frame rotated at the run's mean velocity (their change within
+:data:`MAX_RUN` s moves the attitude by < 1e-8 rad); :func:`propagate_reference` is the
+per-sample reference it is tested against.
 
 Measurements
 ------------
@@ -86,10 +92,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sins_align.core.earth import GRAVITY_PER_METRE, OMEGA_IE, normal_gravity, radii
-from sins_align.core.preint import prefix_rotations
-from sins_align.core.rotation import quat_from_rotvec, skew, so3_exp, so3_log
+from sins_align.core.earth import OMEGA_IE, normal_gravity, radii
+from sins_align.core.rotation import skew, so3_exp, so3_log
 from sins_align.core.strapdown import NavState, mechanize
+from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
+                                                 advance_navigation, cross as _cross,
+                                                 mT as _mT, run_sums, skew as _skew)
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "sample_transition",
            "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES"]
@@ -120,65 +128,6 @@ class NoiseModel:
     accel_bias_walk: float
 
 
-# Small-array kernels: numpy's general functions (np.cross, stacks of components) cost tens of
-# microseconds on (K, m, 3) arrays this size; a product with a constant tensor costs one.
-_P1, _P2 = [1, 2, 0], [2, 0, 1]
-
-
-def _cross(a, b):
-    """a x b over the last axis."""
-    return a[..., _P1] * b[..., _P2] - a[..., _P2] * b[..., _P1]
-
-
-_SKEW = np.zeros((3, 9))                 # skew(v).ravel() = v @ _SKEW
-for _i, _j, _k, _s in ((0, 1, 2, -1), (0, 2, 1, 1), (1, 0, 2, 1), (1, 2, 0, -1),
-                       (2, 0, 1, -1), (2, 1, 0, 1)):
-    _SKEW[_k, 3 * _i + _j] = _s
-
-
-def _skew(v):
-    """(v x) for (..., 3) vectors: (..., 3, 3)."""
-    return (v @ _SKEW).reshape(v.shape[:-1] + (3, 3))
-
-
-# Hamilton product of [x, y, z, w] quaternions: (p q) = (p @ _QMUL).reshape(4, 4) @ q
-_QMUL = np.zeros((4, 4, 4))              # [j, i, k]: coefficient of p_j q_k in (p q)_i
-for _i, _terms in enumerate((
-        ((3, 0, 1), (0, 3, 1), (1, 2, 1), (2, 1, -1)),
-        ((3, 1, 1), (0, 2, -1), (1, 3, 1), (2, 0, 1)),
-        ((3, 2, 1), (0, 1, 1), (1, 0, -1), (2, 3, 1)),
-        ((3, 3, 1), (0, 0, -1), (1, 1, -1), (2, 2, -1)))):
-    for _j, _k, _s in _terms:
-        _QMUL[_j, _i, _k] = _s
-_QMUL = _QMUL.reshape(4, 16)
-
-
-def _qmul(p, q):
-    """Hamilton products p q of (..., 4) quaternions [x, y, z, w]."""
-    L = (p @ _QMUL).reshape(p.shape[:-1] + (4, 4))
-    return (L @ q[..., None])[..., 0]
-
-
-# DCM of a unit quaternion as a quadratic form: C.ravel() = (q q^T).ravel() @ _QDCM
-_QDCM = np.zeros((4, 4, 9))
-for _e, _terms in enumerate((
-        ((3, 3, 1), (0, 0, 1), (1, 1, -1), (2, 2, -1)),      # C00 = w2 + x2 - y2 - z2
-        ((0, 1, 2), (3, 2, -2)), ((0, 2, 2), (3, 1, 2)),
-        ((0, 1, 2), (3, 2, 2)),
-        ((3, 3, 1), (0, 0, -1), (1, 1, 1), (2, 2, -1)),
-        ((1, 2, 2), (3, 0, -2)), ((0, 2, 2), (3, 1, -2)), ((1, 2, 2), (3, 0, 2)),
-        ((3, 3, 1), (0, 0, -1), (1, 1, -1), (2, 2, 1)))):
-    for _k, _l, _s in _terms:
-        _QDCM[_k, _l, _e] += _s
-_QDCM = _QDCM.reshape(16, 9)
-
-
-def _dcm(q):
-    """DCM of (..., 4) unit quaternions [x, y, z, w]: (..., 3, 3)."""
-    return ((q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
-            @ _QDCM).reshape(q.shape[:-1] + (3, 3))
-
-
 def _w_in(v, lat, h):
     """Earth rate and transport rate, ENU, for (K, 3) velocities and (K,) lat, h."""
     rm, rn = radii(lat)
@@ -189,8 +138,51 @@ def _w_in(v, lat, h):
     return w_ie, w_en
 
 
-def _mT(a):
-    return np.swapaxes(a, -1, -2)
+#: samples whose run sums are computed in one pass (fewer after a re-linearisation)
+_CHUNK_SAMPLES = 2048
+
+
+class _Linearisation:
+    """The point the run sums of one pass are computed at: each filter's biases and scale
+    factors, the corrected samples, and the Earth's quantities at each filter's position
+    (held over the pass: a few seconds move them by less than 1e-9 relative, except
+    gravity, corrected for height within the pass)."""
+
+    def __init__(self, ekf, gyro, accel):
+        self.ids = ekf.ids.copy()
+        self.bg, self.ba = ekf.bg.copy(), ekf.ba.copy()
+        self.sf, self.sa = ekf.sf.copy(), ekf.sa.copy()
+        self.w = (gyro - ekf.bg[:, None]) / (1.0 + ekf.sf[:, None])
+        self.f = (accel - ekf.ba[:, None]) / (1.0 + ekf.sa[:, None])
+        lat, h = ekf.lat, ekf.h
+        rm, rn = radii(lat)
+        #: per filter: (w_ie north, w_ie up, 1 / (R_M + h), 1 / (R_N + h), tan lat,
+        #: 1 / cos lat, gravity, h) (what runs.advance_navigation reads)
+        self.earth = np.stack([OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat),
+                               1.0 / (rm + h), 1.0 / (rn + h), np.tan(lat), 1.0 / np.cos(lat),
+                               normal_gravity(lat, h), h], -1).tolist()
+
+    def rows(self, ekf):
+        """The rows of this pass's arrays of the bank's filters now (None: all, in order)."""
+        if len(ekf.ids) == len(self.ids):
+            return None
+        return np.searchsorted(self.ids, ekf.ids)
+
+    @staticmethod
+    def take(a, rows):
+        return a if rows is None else a[rows]
+
+    def drifted(self, ekf, r, s) -> bool:
+        """Have the biases moved so far since this point that run r must be recomputed?"""
+        rows = self.rows(ekf)
+        T = float(s.T[r])
+        rot = np.abs(ekf.bg - self.take(self.bg, rows)).max()
+        vel = np.abs(ekf.ba - self.take(self.ba, rows)).max()
+        if ekf.i_sf is not None:
+            rot += np.abs(ekf.sf - self.take(self.sf, rows)).max() * s.w_max
+        if ekf.i_sa is not None:
+            vel += np.abs(ekf.sa - self.take(self.sa, rows)).max() * s.f_max
+        return rot * T > RELINEARIZE_ROTATION or vel * T > RELINEARIZE_VELOCITY
 
 
 class InvariantEKF:
@@ -257,19 +249,30 @@ class InvariantEKF:
         self.t_since_feedback = 0.0
         self.w_last = np.zeros((K, 3))
         self.f_last = np.zeros((K, 3))
+        #: which filter of the original bank each one is (kept by :meth:`select`)
+        self.ids = np.arange(K)
+        self._eye = np.eye(self.n)
 
     _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "sf", "sa",
-               "dx", "w_last", "f_last")
+               "dx", "w_last", "f_last", "ids")
 
     @property
     def K(self) -> int:
         return len(self.C)
 
     def copy(self) -> "InvariantEKF":
-        new = InvariantEKF.__new__(InvariantEKF)
-        new.__dict__.update(self.__dict__)
+        """An independent copy (its own arrays)."""
+        new = self.snapshot()
         for k in self._ARRAYS:
             setattr(new, k, getattr(self, k).copy())
+        return new
+
+    def snapshot(self) -> "InvariantEKF":
+        """A copy that shares the arrays: cheap, and it keeps the state of now because
+        every method of this class replaces its arrays instead of writing into them. Code
+        that writes into the arrays in place takes :meth:`copy`."""
+        new = InvariantEKF.__new__(InvariantEKF)
+        new.__dict__.update(self.__dict__)
         return new
 
     def select(self, index) -> None:
@@ -288,9 +291,22 @@ class InvariantEKF:
 
     # ------------------------------------------------------------ propagation
     def propagate(self, dt, gyro, accel) -> None:
-        """Propagate over samples in runs of at most MAX_RUN s: dt (m,); gyro and accel
-        (m, 3), the same samples for every filter, or (K, m, 3), each filter its own (a
-        Monte Carlo of K runs)."""
+        """Propagate over samples: dt (m,); gyro and accel (m, 3), the same samples for every
+        filter, or (K, m, 3), each filter its own (a Monte Carlo of K runs)."""
+        for _ in self.propagate_runs(dt, gyro, accel, [len(np.reshape(dt, -1))]):
+            pass
+
+    def propagate_runs(self, dt, gyro, accel, ends):
+        """Propagate the runs of samples ``[ends[r-1], ends[r])`` one after the other, and
+        yield r after run r (the state is then that of its last sample: the caller applies
+        its measurements there, and may change the states, even drop filters with
+        :meth:`select`, before asking for the next run). A generator.
+
+        Runs longer than :data:`MAX_RUN` are propagated in pieces. The sums of the runs
+        are computed ahead, many runs at once, at the biases of that moment
+        (:func:`~sins_align.estimators.in_motion.runs.run_sums`); a run applied after the
+        biases changed is corrected to first order, and the sums are computed anew once
+        the change could matter (see :mod:`~sins_align.estimators.in_motion.runs`)."""
         dt = np.asarray(dt, dtype=float).reshape(-1)
         gyro = np.asarray(gyro, dtype=float)
         accel = np.asarray(accel, dtype=float)
@@ -299,131 +315,142 @@ class InvariantEKF:
             return
         if gyro.shape[-2:] != (m, 3) or accel.shape != gyro.shape or gyro.ndim > 3:
             raise ValueError(f"gyro and accel must be ({m}, 3) or (K, {m}, 3)")
+        ends = [int(e) for e in ends]
+        if not ends or ends[-1] != m or any(b <= a for a, b in zip([0] + ends, ends)):
+            raise ValueError(f"ends must increase from above 0 to {m}")
+        # pieces of at most MAX_RUN s; owner[p]: the run a piece ends, or -1
         tt = np.cumsum(dt)
+        pieces, owner = [], []
         k = 0
-        while k < m:
-            e = k + max(1, int(np.searchsorted(tt[k:], tt[k] - dt[k] + MAX_RUN, "right")))
-            self._run(dt[k:e], gyro[..., k:e, :], accel[..., k:e, :])
-            k = e
+        for r, e in enumerate(ends):
+            while k < e:
+                p = k + max(1, int(np.searchsorted(tt[k:e], tt[k] - dt[k] + MAX_RUN, "right")))
+                p = min(p, e)
+                pieces.append(p)
+                owner.append(r if p == e else -1)
+                k = p
+        size = _CHUNK_SAMPLES
+        i = 0
+        while i < len(pieces):
+            a = pieces[i - 1] if i else 0
+            j = i + 1
+            while j < len(pieces) and pieces[j] - a <= size:
+                j += 1
+            b = pieces[j - 1]
+            lin = self._linearisation(gyro[..., a:b, :], accel[..., a:b, :])
+            sums = run_sums(dt[a:b], lin.w, lin.f, [p - a for p in pieces[i:j]], self.noise,
+                            self.n, self.i_sf, self.i_sa)
+            q = i
+            while q < j:
+                if q > i and lin.drifted(self, q - i, sums):
+                    break
+                self._advance(sums, q - i, lin, gyro[..., pieces[q] - 1, :],
+                              accel[..., pieces[q] - 1, :])
+                q += 1
+                if owner[q - 1] >= 0:
+                    yield owner[q - 1]
+            # fewer runs ahead after a re-linearisation, more when none was needed
+            size = max(1, (pieces[q - 1] - a) // 2) if q < j else min(2 * size,
+                                                                        _CHUNK_SAMPLES)
+            i = q
 
-    def _run(self, dt, gyro, accel):
-        w = (gyro - self.bg[:, None]) / (1.0 + self.sf[:, None])    # (K, m, 3)
-        f = (accel - self.ba[:, None]) / (1.0 + self.sa[:, None])
-        rv = w * dt[None, :, None]
-        K = len(w)
-        q_half = quat_from_rotvec(0.5 * rv)
-        G = np.stack(prefix_rotations(dt, w), -1)    # Gamma_j, j = 1..m
-        Gprev = np.concatenate([np.broadcast_to([0.0, 0.0, 0.0, 1.0], (K, 1, 4)), G[:, :-1]], 1)
-        R_mid = _dcm(_qmul(Gprev, q_half))           # (K, m, 3, 3)
-        Gm = _dcm(G[:, -1] / np.linalg.norm(G[:, -1], axis=-1, keepdims=True))
-        dV = np.einsum("kmij,kmj->kmi", R_mid, f) * dt[None, :, None]
-        V = np.cumsum(dV, axis=1)
-        Ttot = float(dt.sum())
-        # ---------------------------------------------------------- covariance
-        Rdt = R_mid * dt[None, :, None, None]
-        S = np.cumsum(Rdt, axis=1)
-        Mx = np.einsum("kmij,kmjl->kil", _skew(dV), S - 0.5 * Rdt)
-        GmT = _mT(Gm)
-        Vm = V[:, -1]
-        n = self.n
-        Phi = np.broadcast_to(np.eye(n), (K, n, n)).copy()
-        Phi[:, IPHI, IPHI] = GmT
-        GS = GmT @ S[:, -1]
+    def _linearisation(self, gyro, accel) -> "_Linearisation":
+        return _Linearisation(self, gyro, accel)
+
+    def _advance(self, s, r, lin, gyro_end, accel_end) -> None:
+        """Apply run r of the sums ``s`` (bias-corrected to first order) to every filter."""
+        rows = lin.rows(self)
+        if rows is None:
+            def g(a):
+                return a[:, r]
+        else:
+            def g(a):
+                return a[rows, r]
+        T = float(s.T[r])
+        K = self.K
+        # ------------------------------------------------------------ navigation
+        # filter by filter, in scalar arithmetic (see runs.advance_navigation)
+        sums = g(s.packed).tolist()
+        dbg = (self.bg - lin.take(lin.bg, rows)).tolist()
+        dba = (self.ba - lin.take(lin.ba, rows)).tolist()
+        earth = lin.earth if rows is None else [lin.earth[i] for i in rows]
+        Cs, vs = self.C.reshape(K, 9).tolist(), self.v.tolist()
+        lat, lon, h = self.lat.tolist(), self.lon.tolist(), self.h.tolist()
+        extra = [dict() for _ in range(K)]
+        if s.Sw is not None:
+            dsf = (self.sf - lin.take(lin.sf, rows)).tolist()
+            Sw, Mw = g(s.Sw).reshape(K, 9).tolist(), g(s.Mw).reshape(K, 9).tolist()
+            for k in range(K):
+                extra[k].update(dsf=dsf[k], Sw=Sw[k], Mw=Mw[k])
+        if s.Sa is not None:
+            dsa = (self.sa - lin.take(lin.sa, rows)).tolist()
+            Sa = g(s.Sa).reshape(K, 9).tolist()
+            for k in range(K):
+                extra[k].update(dsa=dsa[k], Sa=Sa[k])
+        Gb, Vb = [None] * K, [None] * K
+        for k in range(K):
+            Cs[k], vs[k], lat[k], lon[k], h[k], Gb[k], Vb[k] = advance_navigation(
+                Cs[k], vs[k], lat[k], lon[k], h[k], sums[k], T, dbg[k], dba[k], earth[k],
+                **extra[k])
+        # ------------------------------------------------------------ covariance
+        # the transition at the biases of now (the run's own sums, corrected as above):
+        # the sums' linearisation point would turn a large heading variance into the level
+        # by the rotation the biases' change causes (up to RELINEARIZE_ROTATION per run)
+        GbT = _mT(np.array(Gb).reshape(K, 3, 3))
+        S = g(s.S)
+        Phi = np.broadcast_to(self._eye, (K, self.n, self.n)).copy()
+        GS = GbT @ S
+        Phi[:, IPHI, IPHI] = GbT
         Phi[:, IPHI, IBG] = -GS
-        Phi[:, INU, IPHI] = -GmT @ _skew(Vm)
-        Phi[:, INU, INU] = GmT
-        Phi[:, INU, IBG] = GmT @ Mx
+        Phi[:, INU, IPHI] = -GbT @ _skew(np.array(Vb))
+        Phi[:, INU, INU] = GbT
+        Phi[:, INU, IBG] = GbT @ g(s.M)
         Phi[:, INU, IBA] = -GS
-        if self.i_sf is not None:
-            # a scale-factor error acts as a bias of w per axis: the same sums, each
-            # sample weighted by its rotation instead of its duration
-            Rrv = R_mid * rv[:, :, None, :]
-            Sw = np.cumsum(Rrv, axis=1)
-            Mw = np.einsum("kmij,kmjl->kil", _skew(dV), Sw - 0.5 * Rrv)
-            Phi[:, IPHI, self.i_sf] = -GmT @ Sw[:, -1]
-            Phi[:, INU, self.i_sf] = GmT @ Mw
-        if self.i_sa is not None:
-            # and an accelerometer scale-factor error as an accelerometer bias of f per axis
-            Phi[:, INU, self.i_sa] = -GmT @ (R_mid * (f * dt[None, :, None])[:, :, None, :]
-                                             ).sum(axis=1)
-        nz = self.noise
-        qg, qa = nz.gyro_arw ** 2, nz.accel_vrw ** 2
-        D = Vm[:, None] - V                          # (K, m, 3)
-        A = np.einsum("m,kmi->ki", dt, D)
-        d2 = np.einsum("m,kmi,kmi->k", dt, D, D)
-        B = d2[:, None, None] * _I3 - np.einsum("m,kmi,kmj->kij", dt, D, D)
-        Q = np.zeros((K, n, n))
-        Q[:, IPHI, IPHI] = qg * Ttot * _I3
-        c = qg * (GmT @ _skew(A) @ Gm)
-        Q[:, IPHI, INU] = c
-        Q[:, INU, IPHI] = _mT(c)
-        Q[:, INU, INU] = qa * Ttot * _I3 + qg * (GmT @ B @ Gm)
-        Q[:, IBG, IBG] = nz.gyro_bias_walk ** 2 * Ttot * _I3
-        Q[:, IBA, IBA] = nz.accel_bias_walk ** 2 * Ttot * _I3
-        P = Phi @ self.P @ _mT(Phi) + Q
+        if s.Sw is not None:
+            Phi[:, IPHI, self.i_sf] = -GbT @ g(s.Sw)
+            Phi[:, INU, self.i_sf] = GbT @ g(s.Mw)
+        if s.Sa is not None:
+            Phi[:, INU, self.i_sa] = -GbT @ g(s.Sa)
+        P = Phi @ self.P @ _mT(Phi) + g(s.Q)
         self.P = 0.5 * (P + _mT(P))
-        self.t_since_feedback += Ttot
+        self.t_since_feedback += T
         if self.schedule is not None:
             self.dx = np.einsum("kij,kj->ki", Phi, self.dx)
-        # ---------------------------------------------------------- mechanization
-        C0, v0, lat0, h0 = self.C, self.v, self.lat, self.h
-        w_ie, w_en = _w_in(v0, lat0, h0)
-        w_in = w_ie + w_en                           # (K, 3)
-        Om = 2.0 * w_ie + w_en
-        g0 = normal_gravity(lat0, h0)                # (K,)
-        T = np.cumsum(dt)
-        t_mid = T - 0.5 * dt
-        dvn = np.einsum("kij,kmj->kmi", C0, dV)      # specific-force increments, n (start)
-        dvn = dvn - _cross(w_in[:, None], dvn) * t_mid[None, :, None]
-        dvn[..., 2] -= g0[:, None] * dt[None]
-        v_pre = v0[:, None] + np.cumsum(dvn, axis=1)
-        v_prev = np.concatenate([v0[:, None], v_pre[:, :-1]], 1)
-        v_mid = 0.5 * (v_prev + v_pre)
-        vz_dt = v_mid[..., 2] * dt[None]
-        h_mid = h0[:, None] + np.cumsum(vz_dt, axis=1) - 0.5 * vz_dt
-        acc = -_cross(Om[:, None], v_mid)
-        acc[..., 2] += GRAVITY_PER_METRE * (h_mid - h0[:, None])
-        v_new = v_pre + np.cumsum(acc * dt[None, :, None], axis=1)
-        v_prev = np.concatenate([v0[:, None], v_new[:, :-1]], 1)
-        v_avg = 0.5 * (v_prev + v_new)
-        rm, rn = radii(lat0)
-        dlat = v_avg[..., 1] / (rm[:, None] + h_mid) * dt[None]
-        lat_mid = lat0[:, None] + np.cumsum(dlat, axis=1) - 0.5 * dlat
-        dlon = v_avg[..., 0] / ((rn[:, None] + h_mid) * np.cos(lat_mid)) * dt[None]
-        lat1 = lat0 + dlat.sum(1)
-        self.lon = self.lon + dlon.sum(1)
-        self.h = h0 + (v_avg[..., 2] * dt[None]).sum(1)
-        self.v = v_new[:, -1].copy()
-        w_ie, w_en = _w_in(v_avg.mean(axis=1), 0.5 * (lat0 + lat1), h_mid.mean(axis=1))
-        self.lat = lat1
-        self.C = so3_exp(-(w_ie + w_en) * Ttot) @ C0 @ Gm   # the run's mean frame rate
-        self.w_last = w[:, -1].copy()
-        self.f_last = f[:, -1].copy()
+        self.C = np.array(Cs).reshape(K, 3, 3)
+        self.v = np.array(vs)
+        self.lat, self.lon, self.h = np.array(lat), np.array(lon), np.array(h)
+        self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
+        self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
 
     # ---------------------------------------------------------------- updates
     def _apply(self, y, H, R, nis_limit=None):
         """Kalman update of every filter: residuals y (K, d), models H (K, d, n), noise R
         (d, d) or (K, d, d); feeds the estimates back. Returns (NIS per degree of freedom
-        before any inflation (K,), log-likelihood of y (K,))."""
+        before any inflation (K,), log-likelihood of y (K,): zeros for a single filter, which
+        has no other to be weighed against)."""
         P = self.P
-        HT = _mT(H)
-        S = H @ P @ HT + R
+        PHT = P @ _mT(H)
+        S = H @ PHT + R
         Sinv = np.linalg.inv(S)
         d = y.shape[-1]
-        maha = np.einsum("ki,kij,kj->k", y, Sinv, y)
+        Sy = (Sinv @ y[..., None])[..., 0]
+        maha = np.einsum("ki,ki->k", y, Sy)
         nis = maha / d
-        loglik = -0.5 * (maha + np.linalg.slogdet(S)[1] + d * math.log(2.0 * math.pi))
-        R = np.broadcast_to(R, S.shape)
-        if nis_limit is not None:
+        if self.K > 1:
+            loglik = -0.5 * (maha + np.linalg.slogdet(S)[1] + d * math.log(2.0 * math.pi))
+        else:
+            loglik = np.zeros(1)
+        if nis_limit is not None and float(nis.max()) > nis_limit:
             a = np.maximum(nis / nis_limit, 1.0)
             R = R + (a - 1.0)[:, None, None] * S
             Sinv = Sinv / a[:, None, None]
-        Kg = P @ HT @ Sinv
-        IKH = np.eye(self.n) - Kg @ H
+            Sy = Sy / a[:, None]
+        Kg = PHT @ Sinv
+        IKH = self._eye - Kg @ H
         P = IKH @ P @ _mT(IKH) + Kg @ R @ _mT(Kg)
         self.P = 0.5 * (P + _mT(P))
         if self.schedule is None:
-            self.feedback(np.einsum("kij,kj->ki", Kg, y))
+            self.feedback((PHT @ Sy[..., None])[..., 0])
         else:
             # the error estimate carried on: the residual about it, then its scheduled part
             # fed back (seed 002's LQR feedback)
@@ -465,12 +492,17 @@ class InvariantEKF:
     def velocity_model(self):
         """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state."""
         C, lever = self.C, self.lever
+        K = self.K
+        if self.i_lev is None and not lever.any():
+            # no lever arm: the antenna is the IMU (the general form below gives these)
+            H = np.zeros((K, 3, self.n))
+            H[:, :, INU] = -C
+            return self.v.copy(), H
         w_ie, w_en = _w_in(self.v, self.lat, self.h)
         a = np.einsum("kji,kj->ki", C, w_ie + w_en)
         w_nb = self.w_last - a
         u = _cross(w_nb, lever)
         z_hat = self.v + np.einsum("kij,kj->ki", C, u)
-        K = self.K
         Hb = np.zeros((K, 3, self.n))
         Hb[:, :, IPHI] = _skew(u) - _skew(lever) @ _skew(a)
         Hb[:, :, INU] = -_I3
@@ -491,6 +523,8 @@ class InvariantEKF:
         if z.ndim == 2:
             return self._apply(z - z_hat, H, R, nis_limit)
         ok = np.isfinite(z)
+        if ok.all():
+            return self._apply(z - z_hat, H, R, nis_limit)
         return self._apply((z - z_hat)[:, ok], H[:, ok], R[np.ix_(ok, ok)], nis_limit)
 
     def update_lateral(self, axis: int, sigma: float, nis_limit=None):
@@ -545,6 +579,8 @@ def propagate_reference(ekf: InvariantEKF, dt, gyro, accel) -> None:
     tests."""
     nz = ekf.noise
     n = ekf.n
+    for k in ekf._ARRAYS:                  # written in place below: its own arrays
+        setattr(ekf, k, getattr(ekf, k).copy())
     for d, g, a in zip(np.asarray(dt, float).reshape(-1), np.asarray(gyro, float).reshape(-1, 3),
                        np.asarray(accel, float).reshape(-1, 3)):
         Phi = sample_transition(ekf, d, g, a)

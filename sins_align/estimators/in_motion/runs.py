@@ -1,0 +1,294 @@
+"""The closed-form sums of many runs of samples at once (numpy only).
+
+:class:`~sins_align.estimators.in_motion.filter.InvariantEKF` propagates between
+measurements in runs (the module docstring of ``filter.py`` gives the closed form of one run).
+A run's sums depend on the samples and on the biases (and scale factors) they are corrected
+with, not on the attitude or velocity. So the sums of every run up to the next few
+measurements are computed here in one vectorised pass, at the biases of that moment (the
+*linearisation point*); a measurement that changes the biases afterwards is taken into
+account to first order when the run is applied (:func:`bias_corrected`), exactly as
+pre-integration with bias Jacobians does (Forster et al.): the run's own transition
+matrix is the Jacobian. The filter computes the sums anew (re-linearises) when the biases
+have moved so far that the neglected second-order term could reach 1e-10 rad
+(:data:`RELINEARIZE_ROTATION`).
+
+Each sum is first taken in the frame of the first sample of the pass (prefix products and
+cumulative sums over the whole pass) and then turned into the frame of its run's start;
+inside a run the cumulative sums restart at zero, so no long sums are differenced.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sins_align.core.preint import prefix_rotations
+from sins_align.core.earth import GRAVITY_PER_METRE
+from sins_align.core.rotation import quat_from_rotvec, so3_exp_entries
+
+__all__ = ["RunSums", "run_sums", "advance_navigation", "RELINEARIZE_ROTATION",
+           "RELINEARIZE_VELOCITY"]
+
+#: largest rotation, rad, that a change of the gyro biases (or scale factors) since the
+#: linearisation point may cause over one run before the sums are computed anew; the
+#: first-order correction's error is of its square (1e-10 rad)
+RELINEARIZE_ROTATION = 1e-5
+#: the same for the velocity, m/s, that a change of the accelerometer biases may cause over
+#: one run (the correction is exact in the accelerometer biases; this bounds the error of the
+#: transition matrix, which stays at the linearisation point: 1e-4 relative)
+RELINEARIZE_VELOCITY = 1e-4
+
+_I3 = np.eye(3)
+_P1, _P2 = [1, 2, 0], [2, 0, 1]
+
+_SKEW = np.zeros((3, 9))                 # skew(v).ravel() = v @ _SKEW
+for _i, _j, _k, _s in ((0, 1, 2, -1), (0, 2, 1, 1), (1, 0, 2, 1), (1, 2, 0, -1),
+                       (2, 0, 1, -1), (2, 1, 0, 1)):
+    _SKEW[_k, 3 * _i + _j] = _s
+
+# Hamilton product of [x, y, z, w] quaternions: (p q) = (p @ _QMUL).reshape(4, 4) @ q
+_QMUL = np.zeros((4, 4, 4))              # [j, i, k]: coefficient of p_j q_k in (p q)_i
+for _i, _terms in enumerate((
+        ((3, 0, 1), (0, 3, 1), (1, 2, 1), (2, 1, -1)),
+        ((3, 1, 1), (0, 2, -1), (1, 3, 1), (2, 0, 1)),
+        ((3, 2, 1), (0, 1, 1), (1, 0, -1), (2, 3, 1)),
+        ((3, 3, 1), (0, 0, -1), (1, 1, -1), (2, 2, -1)))):
+    for _j, _k, _s in _terms:
+        _QMUL[_j, _i, _k] = _s
+_QMUL = _QMUL.reshape(4, 16)
+
+# DCM of a unit quaternion as a quadratic form: C.ravel() = (q q^T).ravel() @ _QDCM
+_QDCM = np.zeros((4, 4, 9))
+for _e, _terms in enumerate((
+        ((3, 3, 1), (0, 0, 1), (1, 1, -1), (2, 2, -1)),      # C00 = w2 + x2 - y2 - z2
+        ((0, 1, 2), (3, 2, -2)), ((0, 2, 2), (3, 1, 2)),
+        ((0, 1, 2), (3, 2, 2)),
+        ((3, 3, 1), (0, 0, -1), (1, 1, 1), (2, 2, -1)),
+        ((1, 2, 2), (3, 0, -2)), ((0, 2, 2), (3, 1, -2)), ((1, 2, 2), (3, 0, 2)),
+        ((3, 3, 1), (0, 0, -1), (1, 1, -1), (2, 2, 1)))):
+    for _k, _l, _s in _terms:
+        _QDCM[_k, _l, _e] += _s
+_QDCM = _QDCM.reshape(16, 9)
+
+
+def cross(a, b):
+    """a x b over the last axis (numpy's np.cross costs tens of microseconds on arrays
+    this small; this costs a few)."""
+    return a[..., _P1] * b[..., _P2] - a[..., _P2] * b[..., _P1]
+
+
+def skew(v):
+    """(v x) for (..., 3) vectors: (..., 3, 3), as a product with a constant matrix."""
+    return (v @ _SKEW).reshape(v.shape[:-1] + (3, 3))
+
+
+def qmul(p, q):
+    """Hamilton products p q of (..., 4) quaternions [x, y, z, w]."""
+    L = (p @ _QMUL).reshape(p.shape[:-1] + (4, 4))
+    return (L @ q[..., None])[..., 0]
+
+
+def dcm(q):
+    """DCM of (..., 4) unit quaternions [x, y, z, w]: (..., 3, 3)."""
+    return ((q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
+            @ _QDCM).reshape(q.shape[:-1] + (3, 3))
+
+
+def mT(a):
+    return np.swapaxes(a, -1, -2)
+
+
+@dataclass
+class RunSums:
+    """The sums of R runs for K filters, each array (K, R, ...) (the run's start frame):
+
+    T (R,) durations, s; Gm the rotation over the run; S = sum R_j dt_j; M = sum (dV_j x)
+    (S_j - R_j dt_j / 2); V = sum dV_j; Vt = sum dV_j t_j (t_j: the middle of sample j from
+    the run's start); Pm = sum (V_{j-1} + dV_j / 2) dt_j (the integral of V); Sw, Mw and Sa:
+    the scale-factor sums (None without those states); packed (K, R, 36): Gm, S, M (row
+    by row), V, Vt and Pm side by side (what :func:`advance_navigation` reads); Phi, Q
+    (K, R, n, n): the run's
+    transition and process noise; w_max, f_max: the largest corrected rate and specific
+    force (for the re-linearisation test).
+    """
+
+    T: np.ndarray
+    packed: np.ndarray
+    Gm: np.ndarray
+    S: np.ndarray
+    M: np.ndarray
+    V: np.ndarray
+    Vt: np.ndarray
+    Pm: np.ndarray
+    Q: np.ndarray
+    Sw: np.ndarray | None
+    Mw: np.ndarray | None
+    Sa: np.ndarray | None
+    w_max: float
+    f_max: float
+
+
+def _within(cum, starts, run_id):
+    """Inclusive cumulative sums restarted at each run's start (cum: along axis 1)."""
+    z = np.zeros_like(cum[:, :1])
+    base = np.concatenate([z, cum], axis=1)[:, starts]
+    return cum - base[:, run_id]
+
+
+def run_sums(dt, w, f, ends, noise, n: int, i_sf=None, i_sa=None) -> RunSums:
+    """Sums of the runs ``[ends[r-1], ends[r])`` of samples (``ends`` increasing, the last
+    = number of samples; ``ends[-1] == len(dt)``).
+
+    dt (N,) s; w, f (K, N, 3): the bias-corrected rates (rad/s) and specific forces (m/s^2)
+    of each filter; noise: the :class:`~sins_align.estimators.in_motion.filter.NoiseModel`;
+    n: the error state's size; i_sf, i_sa: the slices of the scale-factor states or None.
+    """
+    dt = np.asarray(dt, dtype=float)
+    ends = np.asarray(ends, dtype=np.intp)
+    starts = np.concatenate(([0], ends[:-1]))
+    R = len(ends)
+    K = w.shape[0]
+    run_id = np.repeat(np.arange(R), ends - starts)
+    dtc = dt[None, :, None]
+    rv = w * dtc
+    G = np.stack(prefix_rotations(dt, w), -1)                       # (K, N, 4)
+    ident = np.broadcast_to([0.0, 0.0, 0.0, 1.0], (K, 1, 4))
+    Gprev = np.concatenate([ident, G[:, :-1]], 1)
+    Rm = dcm(qmul(Gprev, quat_from_rotvec(0.5 * rv)))              # (K, N, 3, 3)
+    qs = Gprev[:, starts]
+    qe = G[:, ends - 1]
+    qs = qs / np.linalg.norm(qs, axis=-1, keepdims=True)
+    qe = qe / np.linalg.norm(qe, axis=-1, keepdims=True)
+    Gs, Ge = dcm(qs), dcm(qe)                                        # (K, R, 3, 3)
+    qs_conj = qs * np.array([-1.0, -1.0, -1.0, 1.0])
+    Gm = dcm(qmul(qs_conj, qe))
+    GsT, GeT = mT(Gs), mT(Ge)
+    T = np.add.reduceat(dt, starts)
+    # ---------------------------------------------------------------- the sums
+    Rdt = Rm * dt[None, :, None, None]
+    S_in = _within(np.cumsum(Rdt, axis=1), starts, run_id)
+    dV = np.einsum("knij,knj->kni", Rm, f) * dtc
+    V_in = _within(np.cumsum(dV, axis=1), starts, run_id)
+    last = ends - 1
+    Sg, Vg = S_in[:, last], V_in[:, last]
+    dVx = skew(dV)
+    Mg = np.add.reduceat(dVx @ (S_in - 0.5 * Rdt), starts, axis=1)
+    t_in = _within(np.cumsum(dt)[None], starts, run_id)[0] - 0.5 * dt
+    Vtg = np.add.reduceat(dV * t_in[None, :, None], starts, axis=1)
+    Pmg = np.add.reduceat((V_in - 0.5 * dV) * dtc, starts, axis=1)
+    D = Vg[:, run_id] - V_in                                        # (K, N, 3)
+    Ag = np.add.reduceat(D * dtc, starts, axis=1)
+    d2 = np.add.reduceat(np.einsum("kni,kni->kn", D, D) * dt[None], starts, axis=1)
+    DD = np.add.reduceat(D[..., :, None] * (D * dtc)[..., None, :], starts, axis=1)
+    Bg = d2[..., None, None] * _I3 - DD
+    S = GsT @ Sg
+    M = GsT @ Mg
+    V = (GsT @ Vg[..., None])[..., 0]
+    Vt = (GsT @ Vtg[..., None])[..., 0]
+    Pm = (GsT @ Pmg[..., None])[..., 0]
+    # ---------------------------------------------------------------- the noise
+    Sw = Mw = Sa = None
+    if i_sf is not None:
+        Rrv = Rm * rv[:, :, None, :]
+        Sw_in = _within(np.cumsum(Rrv, axis=1), starts, run_id)
+        Sw = GsT @ Sw_in[:, last]
+        Mw = GsT @ np.add.reduceat(dVx @ (Sw_in - 0.5 * Rrv), starts, axis=1)
+    if i_sa is not None:
+        Sa = GsT @ np.add.reduceat(Rm * (f * dtc)[:, :, None, :], starts, axis=1)
+    qg, qa = noise.gyro_arw ** 2, noise.accel_vrw ** 2
+    Tc = T[None, :, None, None]
+    Q = np.zeros((K, R, n, n))
+    Q[..., 0:3, 0:3] = qg * Tc * _I3
+    c = qg * (GeT @ skew(Ag) @ Ge)
+    Q[..., 0:3, 3:6] = c
+    Q[..., 3:6, 0:3] = mT(c)
+    Q[..., 3:6, 3:6] = qa * Tc * _I3 + qg * (GeT @ Bg @ Ge)
+    Q[..., 6:9, 6:9] = noise.gyro_bias_walk ** 2 * Tc * _I3
+    Q[..., 9:12, 9:12] = noise.accel_bias_walk ** 2 * Tc * _I3
+    w_max = float(np.abs(w).max()) if w.size else 0.0
+    f_max = float(np.abs(f).max()) if f.size else 0.0
+    packed = np.concatenate([Gm.reshape(K, R, 9), S.reshape(K, R, 9), M.reshape(K, R, 9),
+                             V, Vt, Pm], axis=-1)
+    return RunSums(T, packed, Gm, S, M, V, Vt, Pm, Q, Sw, Mw, Sa, w_max, f_max)
+
+
+# ------------------------------------------------------------------ one filter, one run
+# Scalar arithmetic on 3-vectors and row-major 3x3 lists: on arrays this small each numpy
+# call costs a microsecond or more, a Python float operation some tens of nanoseconds.
+def _mm(a, b):
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return [a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7,
+            a0 * b2 + a1 * b5 + a2 * b8, a3 * b0 + a4 * b3 + a5 * b6,
+            a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
+            a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7,
+            a6 * b2 + a7 * b5 + a8 * b8]
+
+
+def _mv(a, x, y, z):
+    return (a[0] * x + a[1] * y + a[2] * z, a[3] * x + a[4] * y + a[5] * z,
+            a[6] * x + a[7] * y + a[8] * z)
+
+
+def advance_navigation(C, v, lat, lon, h, sums, T, dbg, dba, earth, dsf=None, Sw=None,
+                       Mw=None, dsa=None, Sa=None):
+    """One filter's navigation state over one run (scalar arithmetic).
+
+    C: 9 floats (C_b^n row by row); v: 3 floats (ENU, m/s); lat, lon (rad), h (m); sums:
+    the run's 36 packed floats (:class:`RunSums`), at the linearisation point; T: s;
+    dbg, dba: 3 floats each, the biases now minus those of the linearisation point (and
+    dsf, dsa with the scale-factor sums Sw, Mw, Sa, 9 floats each, when those are
+    estimated); earth: (w_ie north, w_ie up, 1 / (R_M + h), 1 / (R_N + h), tan lat,
+    1 / cos lat, gravity, h) of the pass.
+
+    The change of the biases since the linearisation point is applied to first order: a
+    rotation exp(-phi x), phi = S dbg, at the start of the run and a velocity change
+    M dbg - S dba (start axes). Then the strapdown velocity, position and attitude: the
+    specific force in the start's navigation axes turned by the frame's rotation over the
+    run, gravity (normal gravity at the pass's height, corrected by its gradient), Coriolis
+    and transport rate from the integral of the velocity, and the frame's rotation at the
+    run's mean velocity. Returns (C1, v1, lat1, lon1, h1, Gb, Vb): C1 and the run's
+    bias-corrected rotation Gb 9 floats, v1 and its corrected velocity sum Vb 3 floats.
+    """
+    Gm, S, M = sums[0:9], sums[9:18], sums[18:27]
+    dgx, dgy, dgz = dbg
+    dax, day, daz = dba
+    px, py, pz = _mv(S, dgx, dgy, dgz)
+    m1 = _mv(M, dgx, dgy, dgz)
+    s1 = _mv(S, dax, day, daz)
+    Vx, Vy, Vz = sums[27] + m1[0] - s1[0], sums[28] + m1[1] - s1[1], sums[29] + m1[2] - s1[2]
+    if dsf is not None:
+        a = _mv(Sw, *dsf)
+        b = _mv(Mw, *dsf)
+        px, py, pz = px + a[0], py + a[1], pz + a[2]
+        Vx, Vy, Vz = Vx + b[0], Vy + b[1], Vz + b[2]
+    if dsa is not None:
+        a = _mv(Sa, *dsa)
+        Vx, Vy, Vz = Vx - a[0], Vy - a[1], Vz - a[2]
+    Gb = _mm(so3_exp_entries(-px, -py, -pz), Gm)
+    wn, wu, irm, irn, tanl, icos, g_c, h_c = earth
+    vx, vy, vz = v
+    x0, y0, z0 = _mv(C, Vx, Vy, Vz)                      # C0 V
+    x1, y1, z1 = _mv(C, sums[30], sums[31], sums[32])    # C0 Vt
+    x2, y2, z2 = _mv(C, sums[33], sums[34], sums[35])    # C0 Pm
+    # the frame's rate at the start: Earth rate and transport rate
+    ax, ay, az = -vy * irm, wn + vx * irn, wu + vx * irn * tanl
+    g0 = g_c - GRAVITY_PER_METRE * (h - h_c)
+    # specific-force increment in navigation axes, the frame turning under it
+    dx = x0 - (ay * z1 - az * y1)
+    dy = y0 - (az * x1 - ax * z1)
+    dz = z0 - (ax * y1 - ay * x1) - g0 * T
+    # the integral of the velocity over the run (the frame's rotation within the run
+    # changes it by less than 1e-8 m), then Coriolis (2 w_ie + w_en) and gravity's gradient
+    ix, iy, iz = vx * T + x2, vy * T + y2, vz * T + z2 - 0.5 * g0 * T * T
+    ox, oy, oz = ax, ay + wn, az + wu
+    cx = -(oy * iz - oz * iy)
+    cy = -(oz * ix - ox * iz)
+    cz = -(ox * iy - oy * ix) + GRAVITY_PER_METRE * 0.5 * iz * T
+    v1 = [vx + dx + cx, vy + dy + cy, vz + dz + cz]
+    ix, iy, iz = ix + 0.5 * T * cx, iy + 0.5 * T * cy, iz + 0.5 * T * cz
+    # the frame's rotation over the run, at the mean velocity
+    mx, my = ix / T, iy / T
+    Ew = so3_exp_entries(my * irm * T, -(wn + mx * irn) * T, -(wu + mx * irn * tanl) * T)
+    C1 = _mm(_mm(Ew, C), Gb)
+    return C1, v1, lat + iy * irm, lon + ix * irn * icos, h + iz, Gb, (Vx, Vy, Vz)
