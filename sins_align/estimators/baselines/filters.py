@@ -104,6 +104,11 @@ class _SigmaFilter:
         self.config = config
         self.sp = SigmaPoints(10, config.alpha, config.beta, config.kappa)
 
+    def _sigma(self, n: int) -> SigmaPoints:
+        if self.sp.n != n:
+            self.sp = SigmaPoints(n, self.config.alpha, self.config.beta, self.config.kappa)
+        return self.sp
+
     def run(self, dt: float, gyro: np.ndarray, accel: np.ndarray, C_est0: np.ndarray,
             seed: int = 0) -> BaselineResult:
         c = self.config
@@ -132,11 +137,12 @@ class UKF(_SigmaFilter):
 
     def filter(self, model, x0, P0, rng=None):
         N = model.z.shape[1]
+        sp = self._sigma(model.n)
         x = np.broadcast_to(x0, (N, 1, model.n)).copy()
         P = np.broadcast_to(P0, (N, 1, model.n, model.n)).copy()
         xs, Ps = [], []
         for k in range(model.steps):
-            x, Pp, _ = unscented_predict(model, self.sp, x, P, k)
+            x, Pp, _ = unscented_predict(model, sp, x, P, k)
             x, P, _, _ = linear_update(x, Pp + model.Q(k), model.z[k][:, None], model.H, model.R)
             xs.append(x[:, 0])
             Ps.append(P[:, 0])
@@ -193,6 +199,7 @@ class UPF(_SigmaFilter):
 
     def filter(self, model, x0, P0, rng):
         N, M, n = model.z.shape[1], self.particles, model.n
+        sp = self._sigma(n)
         L0 = np.linalg.cholesky(P0)
         x = x0 + rng.standard_normal((N, M, n)) @ L0.T
         P = np.broadcast_to(P0, (N, M, n, n)).copy()
@@ -202,7 +209,7 @@ class UPF(_SigmaFilter):
         LR = np.linalg.cholesky(model.R)
         xs, Ps, ess, lams = [], [], [], []
         for k in range(model.steps):
-            xp, Pp, centre = unscented_predict(model, self.sp, x, P, k)
+            xp, Pp, centre = unscented_predict(model, sp, x, P, k)
             Q = model.Q(k)
             Pp, info = self._fade(model, k, xp, Pp, Q, state)
             z = model.z[k][:, None]

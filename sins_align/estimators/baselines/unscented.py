@@ -130,12 +130,18 @@ class LinearGaussianModel:
     """x_k = F x_{k-1} + w, z_k = H x_k + v: the case where UKF and KF must agree exactly
     and where a consistent particle filter's mean converges to the KF's."""
 
-    def __init__(self, F, Q, H, R):
+    def __init__(self, F, Q, H, R, z=None):
         self.F = np.asarray(F, dtype=float)
         self._Q = np.asarray(Q, dtype=float)
         self.H = np.asarray(H, dtype=float)
         self.R = np.asarray(R, dtype=float)
         self.n = self.F.shape[0]
+        #: measurements (K, runs, m) the filters' ``filter`` methods read
+        self.z = None if z is None else np.asarray(z, dtype=float)
+
+    @property
+    def steps(self) -> int:
+        return len(self.z)
 
     def Q(self, k: int) -> np.ndarray:
         return self._Q
