@@ -10,6 +10,11 @@ Usage::
         [--model constant|conventional|se3|all] [--one-pass | --no-backtrack] [--paper]
         [--seed N] [--every S] [--chunk RUNS] [--json FILE] [--csv FILE]
         [--plot FILE.png]
+    python -m sins_align.tools.montecarlo --study NAME [--runs N] [--seed N] [--duration S]
+        [--json FILE] [--plot FILE.png]
+
+``--study NAME`` runs a comparison study of :data:`sins_align.studies.STUDIES` instead (the
+seeds' methods beside ours; the scenario is the study's, ``--duration`` shortens it).
 
 Run ``i`` is ``sins_align.sim.simulator.simulate(..., seed=seed + i)``; the runs are stacked and fed
 to **one** :class:`~sins_align.estimators.quasi_static.AlignmentFilter` per curve (``C0`` of shape
@@ -621,8 +626,9 @@ def build_parser() -> argparse.ArgumentParser:
         "scenario through one filter vectorised over the runs; per-axis error statistics "
         "against time, NEES, time to the limit accuracy, speed."))
     sc = p.add_argument_group("scenario (defaults: 34 deg N, navigation grade, static)")
-    sc.add_argument("--runs", type=int, default=100, help="number of runs (default 100)")
-    sc.add_argument("--duration", type=float, default=300.0, help="s per run (default 300)")
+    sc.add_argument("--runs", type=int, help="number of runs (default 100; --study: 4)")
+    sc.add_argument("--duration", type=float, help="s per run (default 300; --study: the "
+                    "study's)")
     sc.add_argument("--rate", type=float, help="IMU rate, Hz (default 100)")
     sc.add_argument("--latitude", type=float, help="deg (default 34)")
     sc.add_argument("--height", type=float, help="m (default 0)")
@@ -672,12 +678,18 @@ def build_parser() -> argparse.ArgumentParser:
     ou.add_argument("--plot", metavar="FILE.png",
                     help="error against time, one panel per axis (needs matplotlib)")
     ou.add_argument("--quiet", action="store_true", help="no summary on stdout")
+    p.add_argument("--study", help="run a comparison study instead (sins_align.studies: "
+                   "seed004); takes --runs, --seed, --duration, --json, --plot, --quiet")
     return p
 
 
 def scenario_from_args(args) -> tuple[Scenario, list[Curve]]:
     """Resolve defaults (--paper or the package defaults), validate, build the curves."""
     base = PAPER if args.paper else DEFAULTS
+    if args.duration is None:
+        args.duration = 300.0
+    if args.runs is None:
+        args.runs = 100
 
     def pick(name, key=None):
         v = getattr(args, name)
@@ -732,8 +744,50 @@ def scenario_from_args(args) -> tuple[Scenario, list[Curve]]:
     return scn, curves
 
 
+def run_study(args) -> int:
+    """``--study NAME``: a study of :data:`sins_align.studies.STUDIES`."""
+    from sins_align import studies
+
+    if args.study not in studies.STUDIES:
+        raise CliError(f"--study: unknown study {args.study!r}; choose from "
+                       f"{sorted(studies.STUDIES)}")
+    if args.csv:
+        raise CliError("--study writes --json and --plot only")
+    if args.runs is None:
+        args.runs = 4
+    if args.runs < 1 or args.seed < 0:
+        raise CliError("--runs must be >= 1 and --seed >= 0")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise CliError(f"--duration out of range: {args.duration}")
+    if args.plot:
+        need_matplotlib()
+        if Path(args.plot).suffix.lower() != ".png":
+            raise CliError(f"--plot writes PNG: give a .png file name, got {args.plot}")
+    outs = {w: check_new_output(getattr(args, w), f"--{w}") for w in ("json", "plot")
+            if getattr(args, w)}
+    try:
+        res = studies.STUDIES[args.study](runs=args.runs, seed=args.seed,
+                                          duration=args.duration)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    writers = {"json": write_json, "plot": studies.write_plot}
+    with ExitStack() as stack:
+        tmps = {w: stack.enter_context(AtomicOutput(p)) for w, p in outs.items()}
+        for w, tmp in tmps.items():
+            writers[w](tmp.tmp, finite_or_none(res))
+        for tmp in tmps.values():
+            tmp.commit()
+    if not args.quiet:
+        print(studies.summary_text(res))
+        for w, p in outs.items():
+            print(f"wrote {w} {p}")
+    return 0
+
+
 def run(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.study is not None:
+        return run_study(args)
     scn, curves = scenario_from_args(args)
     if args.plot:
         need_matplotlib()
