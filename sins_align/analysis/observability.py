@@ -111,7 +111,7 @@ SV_FLOOR = 1e-4
 #: prior std)
 UNRESOLVED_OBSERVABLE = 0.01
 #: an observable state with a degree below this (noise units) is only weakly observable
-DEGREE_WEAK = 1e-2
+DEGREE_WEAK = 0.1
 #: from this unresolved fraction on a state is unobservable
 UNRESOLVED_UNOBSERVABLE = 0.5
 
