@@ -218,7 +218,8 @@ def _window_edges(t: np.ndarray, window: float, breaks=()) -> list[tuple[int, in
 
 
 def pieces_from_series(t, C, f_b, w_ib, v, lat, h, window: float = 1.0, *, lever_arm=None,
-                       lever_states: bool = False, breaks=()) -> list[Piece]:
+                       lever_states: bool = False, breaks=(), deadband: float = 0.0
+                       ) -> list[Piece]:
     """The PWCS pieces of a run given per sample.
 
     t : (N,) s, increasing. C : (N, 3, 3) C_b^n. f_b, w_ib : (N, 3) specific force (m/s^2)
@@ -227,6 +228,11 @@ def pieces_from_series(t, C, f_b, w_ib, v, lat, h, window: float = 1.0, *, lever
 
     Each piece holds the mean specific force and rates over its samples (rotated into ENU
     sample by sample) and the attitude of its middle sample.
+
+    deadband : for measured data (> 0): a component of a piece's mean horizontal specific
+    force or body rate smaller than ``deadband`` times its standard error (the samples'
+    scatter over sqrt(count)) is set to 0. Sensor noise otherwise looks like motion and
+    makes heading (and the lever arm) formally observable on a vehicle that stands still.
     """
     t = np.asarray(t, dtype=float).reshape(-1)
     C = np.asarray(C, dtype=float).reshape(-1, 3, 3)
@@ -254,8 +260,13 @@ def pieces_from_series(t, C, f_b, w_ib, v, lat, h, window: float = 1.0, *, lever
     out = []
     for a, b in _window_edges(t, window, breaks):
         m = (a + b - 1) // 2
-        F, H = error_model(C[m], f_n[a:b].mean(0), w_ie[a:b].mean(0), w_nb[a:b].mean(0),
-                           lever_arm, lever_states)
+        fm, wm = f_n[a:b].mean(0), w_nb[a:b].mean(0)
+        if deadband > 0 and b - a > 1:
+            k = math.sqrt(b - a)
+            fm[:2] = np.where(np.abs(fm[:2]) < deadband * f_n[a:b, :2].std(0) / k, 0.0,
+                              fm[:2])
+            wm = np.where(np.abs(wm) < deadband * w_nb[a:b].std(0) / k, 0.0, wm)
+        F, H = error_model(C[m], fm, w_ie[a:b].mean(0), wm, lever_arm, lever_states)
         # a piece covers its samples' intervals: (t[a] - dt, t[b-1]]
         out.append(Piece(float(t[a] - dt), float(t[b - 1]), F, H))
     return out

@@ -43,13 +43,17 @@ from sins_align.analysis.observability import (DEGREE_WEAK, LEVER_STATES, RANK_R
                                                UNRESOLVED_UNOBSERVABLE, Scales, analyze,
                                                coupling_groups, pieces_from_series,
                                                pieces_from_trajectory, scenario, verdict)
-from sins_align.core.rotation import dcm_from_rpy
+from sins_align.core.rotation import dcm_from_rpy, so3_exp
 from sins_align.core.specs import DEG, DPH, UG, grade_specs
 from sins_align.io.bagio import (AtomicOutput, CliError, check_new_output, cli_main,
                                  finite_or_none, need_matplotlib, one_line, pyplot,
                                  signals_deferred)
 
 PROG = "observability"
+#: the singular-value floor of a bag's analysis: sensor noise in the measured specific force
+#: and rates survives the piece means as small spurious motion (a few 1e-4 in noise units
+#: on a standing car)
+BAG_SV_FLOOR = 1e-3
 _ABBREV = {"observable": "obs", "weak": "weak", "coupled": "coup", "unobservable": "UNOB"}
 
 
@@ -76,8 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--lever-states", action="store_true", help="add the lever-arm errors")
     a.add_argument("--lever-std", type=float, default=0.1, metavar="M",
                    help="prior std of the lever-arm error (default 0.1)")
-    a.add_argument("--floor", type=float, default=SV_FLOOR, help="singular values below "
-                   f"this (noise units) are unobservable directions (default {SV_FLOOR:g})")
+    a.add_argument("--floor", type=float, default=None, help="singular values below this "
+                   f"(noise units) are unobservable directions (default {SV_FLOOR:g} for a "
+                   f"scenario, {BAG_SV_FLOOR:g} for a bag: measured noise leaks into the "
+                   "model)")
     b = p.add_argument_group("bag")
     b.add_argument("--topic", help="sensor_msgs/Imu topic (default: the only one)")
     b.add_argument("--latitude", type=float, metavar="DEG", help="latitude, deg")
@@ -107,6 +113,8 @@ def scales_from_args(args) -> Scales:
     for name in ("window", "velocity_noise", "level_std", "heading_std", "lever_std",
                  "report"):
         _positive(name.replace("_", "-"), getattr(args, name))
+    if args.floor is None:
+        args.floor = SV_FLOOR if args.scenario else BAG_SV_FLOOR
     if not (math.isfinite(args.floor) and args.floor >= 0):
         raise CliError(f"--floor must be a finite number >= 0, got {args.floor}")
     kw = dict(level=args.level_std * DEG, heading=args.heading_std * DEG,
@@ -123,6 +131,19 @@ def scales_from_args(args) -> Scales:
 
 
 # ----------------------------------------------------------------------------- inputs
+def body_track(t, gyro, C_end) -> np.ndarray:
+    """(N, 3, 3) C_b^n at each sample: ``C_end`` at the last one, the others from the gyro's
+    rotation between them (each sample's rate over the interval before it)."""
+    dt = np.diff(t, prepend=t[0])
+    steps = so3_exp(gyro * dt[:, None])
+    out = np.empty((len(t), 3, 3))
+    R = np.eye(3)
+    for k in range(len(t)):          # body k -> body 0
+        R = R @ steps[k]
+        out[k] = R
+    return np.einsum("ij,kjl->kil", C_end @ out[-1].T, out)
+
+
 def scenario_pieces(name: str, window: float, lever_states: bool):
     """Seed 001's manoeuvre ``name`` simulated without sensor errors: (pieces, phases)."""
     from sins_align.sim.trajectory import simulate_trajectory
@@ -205,13 +226,16 @@ def bag_pieces(args, window: float, lever_states: bool):
     v = np.stack([np.interp(t, vt, vv[:, i]) for i in range(3)], -1)
     if len(rows) == 0:
         raise CliError(f"the estimator produced no attitude for {args.bag}")
-    # the rows' t counts from the first accepted sample: nearest row at or before each sample
-    k = np.clip(np.searchsorted(rows[:, 0], t - t[0], side="right") - 1, 0, len(rows) - 1)
-    C = dcm_from_rpy(rows[k, 1:4] * DEG)
+    # the attitude: the estimator's final one (the best it knows), carried back through the
+    # gyro (the estimator's own attitude early on is a bank of heading hypotheses whose best
+    # one jumps, which the analysis would take for turns). The Earth's rotation of the
+    # navigation frame over the bag is left out.
+    C = body_track(t, gyro, dcm_from_rpy(rows[-1, 1:4] * DEG))
     lat = config.latitude_deg * DEG
     h = config.height_m
     pieces = pieces_from_series(t - t[0], C, accel, gyro, v, lat, h, window,
-                                lever_arm=config.lever_arm, lever_states=lever_states)
+                                lever_arm=config.lever_arm, lever_states=lever_states,
+                                deadband=3.0)
     span = float(t[-1] - t[0])
     ends = list(np.arange(args.report, span, args.report)) + [span]
     phases = [(f"{e:.0f} s", float(e)) for e in ends]
