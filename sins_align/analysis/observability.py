@@ -16,9 +16,6 @@ are dropped; the attitude error keeps the Earth rate)::
 with the attitude-error convention of ALGORITHM.md (true = exp(phi x) estimate), ``f^n`` the
 specific force and ``w_in^n`` the rate of the navigation frame, here the Earth rate: the
 transport rate (v / R, 1.6e-6 rad/s at 10 m/s) is of the order of the terms the seed drops.
-Kept, it makes the forward-acceleration case formally full rank through a singular value
-1e-7 of the largest (the east accelerometer bias tied to level through a rate no filter
-sees); the seed's verdict, unobservable, is the practical one.
 
 The measurement is the velocity of the antenna, ``z = v + C_b^n (w_nb^b x l^b)``::
 
@@ -53,9 +50,14 @@ thousands of pieces costs a 15 x 15 SVD per piece.
 
 Degree of observability (per state)
 -----------------------------------
-Two numbers per state k, from the SVD ``Q_s = U S V^T`` in those scaled units; directions
-whose singular value is below ``RANK_RTOL`` times the largest are the unobservable subspace
-(its basis: the columns ``N`` of V):
+Two numbers per state k, from the SVD ``Q_s = U S V^T`` in those scaled units. The numerical
+``rank`` counts the singular values above ``RANK_RTOL`` times the largest (the structural
+rank of the theory: 9 of 12 on a static base). The verdicts also drop the directions whose
+singular value is below an absolute floor (``SV_FLOOR``, noise units; ``effective_rank``
+counts the rest): the Coriolis force of a vehicle cruising North (7e-4 m/s^2 sideways at 10
+m/s) or the Earth rate acting on the up gyro bias make directions formally observable that
+no filter resolves in an hour. The columns ``N`` of V for the remaining directions span the
+unobservable subspace:
 
 - ``unresolved[k] = ||N^T e_k||``, in [0, 1]: the fraction of the state's prior standard
   deviation that no data of this motion can remove. It is exactly the posterior/prior std
@@ -74,12 +76,18 @@ whose singular value is below ``RANK_RTOL`` times the largest are the unobservab
   with the data like the singular values do, and is 0 for a state with nothing observable.
   (The plain method assigns each state the singular value of the vector it loads most on; it
   is ambiguous when several states share one vector, which coupled INS states do, so it is
-  not used.)
+  not used.) The SOM sees each piece on its own, not the slow build-up over many pieces
+  (a gyro bias integrated twice), so degrees compare states of one kind and one state over
+  time; across kinds they are a rough guide (a gyro bias of degree 0.1 is resolved by a
+  filter sooner than an accelerometer bias of degree 0.5).
 
-A state is ``observable`` when ``unresolved`` < :data:`UNRESOLVED_OBSERVABLE` (outside the
-unobservable subspace), ``unobservable`` when it is >= :data:`UNRESOLVED_UNOBSERVABLE` (the
-data cannot remove even half its prior std), and ``coupled`` in between (in the unobservable
-subspace, mostly resolved because its partners' priors are tight).
+Verdicts: ``observable`` when ``unresolved`` < :data:`UNRESOLVED_OBSERVABLE` and the degree
+is at least :data:`DEGREE_WEAK`, ``weak`` when only the degree is below it, ``unobservable``
+when ``unresolved`` >= :data:`UNRESOLVED_UNOBSERVABLE` (the data cannot remove even half its
+prior std), and ``coupled`` in between (in the unobservable subspace, mostly resolved
+because its partners' priors are tight). On seed 001's manoeuvres the in-motion filter's
+covariance follows them (test/test_observability.py): a coupled state's std ends at its
+``unresolved`` fraction to a few per cent.
 """
 from __future__ import annotations
 
