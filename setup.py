@@ -9,8 +9,8 @@ package_name = 'sins_align'
 # The one list of executables. Each lands in lib/sins_align/ (setup.cfg), where `ros2 run`
 # finds it; every tool also runs as `python -m sins_align.<tool>`.
 # Entries are added here as their modules land (align_node, imu_sim_node, replay, simulate,
-# import_imu, montecarlo). test/test_package_layout.py reads this list with ast, so keep it
-# a plain list of string literals.
+# import_imu, montecarlo, observability). test/test_package_layout.py reads this list with
+# ast, so keep it a plain list of string literals.
 ENTRY_POINTS = [
     'demo = sins_align.ros.demo:main',
     'align_node = sins_align.ros.align_node:main',
@@ -19,6 +19,7 @@ ENTRY_POINTS = [
     'simulate = sins_align.tools.simulate:main',
     'import_imu = sins_align.tools.import_imu:main',
     'montecarlo = sins_align.tools.montecarlo:main',
+    'observability = sins_align.tools.observability:main',
 ]
 
 

@@ -1,0 +1,1 @@
+"""Offline analyses of the alignment problem (numpy/scipy, no ROS)."""
