@@ -534,6 +534,7 @@ class Aligner(EventSource, AttitudeReadout):
     def summary(self) -> dict:
         """A JSON-ready snapshot of the result (node diagnostics, replay summary)."""
         r = self.filter.fine_R_std
+        vrw = self.filter.accel_vrw_used
         return {
             "status": self.status,
             "stage": self.stage,
@@ -550,5 +551,10 @@ class Aligner(EventSource, AttitudeReadout):
             "std_enu_deg": self.std_enu_deg.tolist(),
             "limit_std_enu_deg": [float(x) for x in self.limit_std_deg],
             "fine_velocity_noise_mps": None if r is None else r[0].tolist(),
+            # the accelerometer noise density the fine pass uses: the configured accel_vrw,
+            # or what the data showed when significantly more (then accel_noise_above_spec)
+            "accel_noise_density": None if vrw is None else float(vrw[0]),
+            "accel_noise_above_spec": (None if vrw is None
+                                       else bool(vrw[0] > self.config.specs.accel_vrw)),
             "nis": self.nis,
         }

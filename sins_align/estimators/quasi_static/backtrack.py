@@ -43,8 +43,9 @@ class Backtrack:
         adt, aw, af = bridged(dt, w, f, gap, bridge)
         u = start_frame_increments(adt, aw, af)     # shared by the two analyses
         C0, std0, v0 = self._fine_start(C0, adt, aw, af, u)
-        r_std, self.fine_period = self._sway_velocity_std(C0, adt, aw, af, u)
+        r_std, self.fine_period, q = self._sway_velocity_std(C0, adt, aw, af, u)
         self.fine_R_std = r_std
+        self._set_velocity_noise(q)
         R = np.zeros((self.n, 3, 3))
         R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
         self._start_pass(C0, fine=True, std=std0, R=R, v0=v0)
@@ -164,9 +165,20 @@ class Backtrack:
         is used, with half their mean square as the measurement noise (per run, per axis),
         floored by the VRW term and ``fine_min_velocity_noise``.
 
+        The same interval means also measure the accelerometer's white noise, which the
+        configured ``accel_vrw`` may understate (a noisier sensor than its specs): it makes
+        the velocity a random walk, and the differences of its interval means are then not
+        white but correlated at lag 1 (:func:`velocity_random_walk`). When that density is
+        significantly above the configured one, the fine pass uses it as its process noise
+        (and the measurement noise keeps only the part of the differences it does not
+        explain): with the configured density the filter would fit the random walk as
+        attitude error and publish a heading std tens of times too small.
+
         Returns
         -------
-        r_std : ndarray (N, 3), m/s ; period : float, s
+        r_std : ndarray (N, 3), m/s ; period : float, s ; q : ndarray (N,), (m/s)^2/s, the
+        velocity random walk density per run (the configured ``accel_vrw ** 2`` unless the
+        data show significantly more)
         """
         c = self.config
         vs = open_loop_velocity(dt, w, f, C0, self.w_ie, self.g_n, increments=u)
@@ -180,6 +192,8 @@ class Backtrack:
         csum = np.concatenate([np.zeros((1, csum.shape[1])), csum])
         period = base = c.fine_update_period
         r_std = None
+        q_cfg = c.specs.accel_vrw ** 2
+        q = np.full(self.n, q_cfg)
         for mult in (1, 2, 5, 10, 20):
             p = base * mult
             idx = np.floor((t - 0.5 * dt) / p).astype(int)   # sample midpoints: no ties
@@ -201,22 +215,75 @@ class Backtrack:
             dd = np.maximum(np.sum(d * d, axis=0), 1e-300)
             lags = [np.sum(d[k:] * d[:-k], axis=0) / dd for k in range(1, min(6, len(d) // 2))]
             r1 = lags[0]
-            white = (r1 < 0.4) & (r1 > -0.75)
+            white_d = (r1 < 0.4) & (r1 > -0.75)
             for rk in lags[1:]:
-                white &= np.abs(rk) < 0.4
-            floor2 = c.specs.accel_vrw ** 2 * p / 3.0 + c.fine_min_velocity_noise ** 2
-            var = var.reshape(self.n, 3)
+                white_d &= np.abs(rk) < 0.4
+            # the accelerometer's white noise measured on the same means: where it is
+            # significantly above the configured density, the random walk it makes is
+            # process noise, and only the rest of the differences is measurement noise
+            # (the specs are isotropic, so are Q and this estimate: the three axes pooled)
+            qa, noisy = velocity_random_walk(d.reshape(len(d), self.n, 3), p, q_cfg)
+            q = np.where(noisy, qa, q_cfg)
+            white = np.maximum(0.5 * np.mean(d ** 2, axis=0).reshape(self.n, 3)
+                               - np.where(noisy, qa, 0.0)[:, None] * p / 3.0, 0.0)
+            var = np.where(noisy[:, None], white, var.reshape(self.n, 3))
+            floor2 = q[:, None] * p / 3.0 + c.fine_min_velocity_noise ** 2
             # the sway's direction in the estimated frame moves with the heading error: a
             # horizontal axis is as noisy as the noisier one
             var[:, :2] = var[:, :2].max(axis=1, keepdims=True)
-            period, r_std = p, np.sqrt(np.maximum(var, floor2))
-            if np.all(white):
+            period, r_std, q_at = p, np.sqrt(np.maximum(var, floor2)), q
+            if np.all(white_d):
                 break
         if r_std is None:
-            floor2 = c.specs.accel_vrw ** 2 * base / 3.0 + c.fine_min_velocity_noise ** 2
-            r_std = np.full((self.n, 3), math.sqrt(floor2))
-        return r_std, period
+            floor2 = q_cfg * base / 3.0 + c.fine_min_velocity_noise ** 2
+            r_std, q_at = np.full((self.n, 3), math.sqrt(floor2)), q
+        return r_std, period, q_at
 
+    def _set_velocity_noise(self, q: np.ndarray):
+        """The fine pass's velocity random walk density (N,), (m/s)^2/s: the process noise
+        the filter propagates (shared when every run has the same, else one per run)."""
+        self.accel_vrw_used = np.sqrt(q)
+        Qc = self.Qc if self.Qc.ndim == 2 else self.Qc[0]
+        if np.all(q == Qc[3, 3]):
+            return
+        if np.all(q == q[0]):
+            Qc = Qc.copy()
+            Qc[3:, 3:] = np.eye(3) * q[0]
+        else:
+            Qc = np.broadcast_to(Qc, (self.n, 6, 6)).copy()
+            Qc[:, 3:, 3:] = np.eye(3) * q[:, None, None]
+        self.Qc = Qc
+        # everything derived from Qc: the discretisations and the schedule cache's key
+        self._cache = {k: v for k, v in self._cache.items() if k[0] not in ("D", "Dm")}
+        self._cfg_key = self._cfg_key[:3] + (Qc.tobytes(),) + self._cfg_key[4:]
+
+
+def velocity_random_walk(d: np.ndarray, p: float, q0: float = 0.0, z: float = 2.0):
+    """White accelerometer noise seen in the differences ``d`` (M, K, 3) of consecutive
+    interval means (``p`` s each) of a velocity (K runs, three axes with the same noise
+    density): density (K,), (m/s)^2/s, and whether it is significantly above ``q0`` (K,)
+    (by more than ``z`` standard errors).
+
+    A random walk of density q gives differences of interval means whose variance is
+    2/3 q p and lag-1 covariance q p / 6, nothing beyond; white noise on the means
+    (sway averaged over the interval, variance R) gives 2 R and -R. So the long-run
+    variance of the differences, gamma_0 + 2 gamma_1, is q p whatever R is: any motion
+    whose velocity stays bounded contributes nothing to it. Its standard error comes from
+    the scatter of the per-interval terms d_k^2 + 2 d_k d_(k+1) (their own long-run
+    variance, lags up to 2).
+    """
+    if len(d) < 4:
+        return np.zeros(d.shape[1]), np.zeros(d.shape[1], dtype=bool)
+    c = (d[:-1] ** 2 + 2.0 * d[:-1] * d[1:]).mean(axis=-1)
+    m = len(c)
+    qp = c.mean(axis=0)
+    e = c - qp
+    lrv = np.mean(e * e, axis=0)
+    for k in (1, 2):
+        if m > k:
+            lrv = lrv + 2.0 * np.sum(e[k:] * e[:-k], axis=0) / m
+    se = np.sqrt(np.maximum(lrv, np.mean(e * e, axis=0) / 4.0) / m)
+    return qp / p, qp > q0 * p + z * se
 
 
 def bridged(dt, w, f, gap, bridge):
