@@ -512,3 +512,19 @@ def test_scale_factor_states_keep_a_turning_uav_near_honest():
             ppm = np.array(al.summary()["gyro_scale_ppm"])
             assert np.abs(ppm - r.gyro_scale * 1e6).max() < 2000.0, (ppm, r.gyro_scale)
     assert out[0.0] > 0.2 and out[0.003] < 0.1 and out[0.003] < out[0.0] / 4.0, out
+
+
+def test_one_sample_sums_equal_the_vectorised_sums():
+    """The live stream's one-sample runs take a scalar path: the same sums as run_sums
+    (scale-factor sums included), to rounding."""
+    from sins_align.estimators.in_motion.runs import one_sample_sums, run_sums
+    rng = np.random.default_rng(0)
+    nz = NoiseModel(1e-3, 1e-2, 1e-5, 1e-4)
+    for K in (1, 3):
+        w, f = rng.normal(0, 1, (K, 1, 3)), rng.normal(0, 5, (K, 1, 3))
+        a = run_sums(np.array([0.013]), w, f, [1], nz, 18, slice(12, 15), slice(15, 18))
+        b = one_sample_sums(0.013, w[:, 0], f[:, 0], nz, 18, slice(12, 15), slice(15, 18))
+        for k in ("T", "packed", "Gm", "S", "M", "V", "Vt", "Pm", "Q", "Sw", "Mw", "Sa"):
+            x, y = getattr(a, k), getattr(b, k)
+            assert x.shape == y.shape, k
+            np.testing.assert_allclose(y, x, rtol=0, atol=1e-15, err_msg=k)

@@ -227,6 +227,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         """
         c = self.config
         n = len(t)
+        if n == 1:
+            return self._check_one(float(t[0]), w[0].tolist(), f[0].tolist())
         finite = np.isfinite(t) & np.all(np.isfinite(w), 1) & np.all(np.isfinite(f), 1)
         fn = np.linalg.norm(np.where(finite[:, None], f, 0.0), axis=1)
         wn = np.linalg.norm(np.where(finite[:, None], w, 0.0), axis=1)
@@ -251,6 +253,33 @@ class MotionAligner(EventSource, AttitudeReadout):
         for i in np.flatnonzero(~good[:end]):
             self._reject(reason[i], float(t[i]) if np.isfinite(t[i]) else None)
         return good, jump
+
+    def _check_one(self, t, w, f):
+        """:meth:`_check` of one sample (a live stream's), in scalar arithmetic: the same
+        rules in the same order."""
+        c = self.config
+        reason = ""
+        if not (math.isfinite(t) and all(math.isfinite(x) for x in w + f)):
+            reason = "nonfinite"
+        else:
+            fn = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
+            if fn < 0.25 * 9.8:
+                reason = "gravity_removed"
+            elif fn > c.specific_force_max:
+                reason = "specific_force_out_of_range"
+            elif math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) > c.max_angular_rate:
+                reason = "rate_too_high"
+        last = -math.inf if self.t_last is None else self.t_last
+        if not reason:
+            if t == last:
+                reason = "duplicate_stamp"
+            elif t < last:
+                reason = "stamp_backwards"
+        if reason:
+            self._reject(reason, t if math.isfinite(t) else None)
+            return np.zeros(1, dtype=bool), None
+        jump = 0 if math.isfinite(last) and t - last > c.max_gap else None
+        return np.ones(1, dtype=bool), jump
 
     def _feed(self, t, w, f):
         """Accepted samples, in order."""

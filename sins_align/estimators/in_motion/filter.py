@@ -97,7 +97,8 @@ from sins_align.core.rotation import skew, so3_exp, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
                                                  advance_navigation, cross as _cross,
-                                                 mT as _mT, run_sums, skew as _skew)
+                                                 mT as _mT, one_sample_sums, run_sums,
+                                                 skew as _skew)
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "sample_transition",
            "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES"]
@@ -155,12 +156,21 @@ class _Linearisation:
         self.w = (gyro - ekf.bg[:, None]) / (1.0 + ekf.sf[:, None])
         self.f = (accel - ekf.ba[:, None]) / (1.0 + ekf.sa[:, None])
         lat, h = ekf.lat, ekf.h
-        rm, rn = radii(lat)
         #: per filter: (w_ie north, w_ie up, 1 / (R_M + h), 1 / (R_N + h), tan lat,
-        #: 1 / cos lat, gravity, h) (what runs.advance_navigation reads)
+        #: 1 / cos lat, gravity, h) (what runs.advance_navigation reads); kept by the bank
+        #: while every filter stays within 1e-6 rad of latitude and 10 m of height of where
+        #: they were computed (that moves the Earth rate by 1e-10 rad/s and the radii by
+        #: 2e-6 relative; gravity follows the height in advance_navigation)
+        cached = ekf._earth
+        if (cached is not None and cached[0].shape == lat.shape
+                and np.abs(cached[0] - lat).max() < 1e-6 and np.abs(cached[1] - h).max() < 10.0):
+            self.earth = cached[2]
+            return
+        rm, rn = radii(lat)
         self.earth = np.stack([OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat),
                                1.0 / (rm + h), 1.0 / (rn + h), np.tan(lat), 1.0 / np.cos(lat),
                                normal_gravity(lat, h), h], -1).tolist()
+        ekf._earth = (lat.copy(), h.copy(), self.earth)
 
     def rows(self, ekf):
         """The rows of this pass's arrays of the bank's filters now (None: all, in order)."""
@@ -252,6 +262,7 @@ class InvariantEKF:
         #: which filter of the original bank each one is (kept by :meth:`select`)
         self.ids = np.arange(K)
         self._eye = np.eye(self.n)
+        self._earth = None            # (lat, h, earth list) of the last pass (_Linearisation)
 
     _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "sf", "sa",
                "dx", "w_last", "f_last", "ids")
@@ -338,8 +349,12 @@ class InvariantEKF:
                 j += 1
             b = pieces[j - 1]
             lin = self._linearisation(gyro[..., a:b, :], accel[..., a:b, :])
-            sums = run_sums(dt[a:b], lin.w, lin.f, [p - a for p in pieces[i:j]], self.noise,
-                            self.n, self.i_sf, self.i_sa)
+            if b - a == 1:
+                sums = one_sample_sums(dt[a], lin.w[:, 0], lin.f[:, 0], self.noise, self.n,
+                                       self.i_sf, self.i_sa)
+            else:
+                sums = run_sums(dt[a:b], lin.w, lin.f, [p - a for p in pieces[i:j]],
+                                self.noise, self.n, self.i_sf, self.i_sa)
             q = i
             while q < j:
                 if q > i and lin.drifted(self, q - i, sums):

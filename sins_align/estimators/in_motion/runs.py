@@ -18,6 +18,7 @@ inside a run the cumulative sums restart at zero, so no long sums are difference
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,8 +27,8 @@ from sins_align.core.preint import prefix_rotations
 from sins_align.core.earth import GRAVITY_PER_METRE
 from sins_align.core.rotation import quat_from_rotvec, so3_exp_entries
 
-__all__ = ["RunSums", "run_sums", "advance_navigation", "RELINEARIZE_ROTATION",
-           "RELINEARIZE_VELOCITY"]
+__all__ = ["RunSums", "run_sums", "one_sample_sums", "advance_navigation",
+           "RELINEARIZE_ROTATION", "RELINEARIZE_VELOCITY"]
 
 #: largest rotation, rad, that a change of the gyro biases (or scale factors) since the
 #: linearisation point may cause over one run before the sums are computed anew; the
@@ -210,6 +211,62 @@ def run_sums(dt, w, f, ends, noise, n: int, i_sf=None, i_sa=None) -> RunSums:
     packed = np.concatenate([Gm.reshape(K, R, 9), S.reshape(K, R, 9), M.reshape(K, R, 9),
                              V, Vt, Pm], axis=-1)
     return RunSums(T, packed, Gm, S, M, V, Vt, Pm, Q, Sw, Mw, Sa, w_max, f_max)
+
+
+@functools.lru_cache(maxsize=16)
+def white_noise_rate(noise, n: int) -> np.ndarray:
+    """(n, n) covariance per second of the white noises on phi, nu and the biases (read
+    only)."""
+    q = np.zeros(n)
+    q[0:3], q[3:6] = noise.gyro_arw ** 2, noise.accel_vrw ** 2
+    q[6:9], q[9:12] = noise.gyro_bias_walk ** 2, noise.accel_bias_walk ** 2
+    out = np.diag(q)
+    out.flags.writeable = False
+    return out
+
+
+def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> RunSums:
+    """:func:`run_sums` of a run of one sample (a live stream's usual run), in scalar
+    arithmetic: the same sums (R_1 = exp(w dt / 2), S = R_1 dt, dV = R_1 f dt, M =
+    (dV x) R_1 dt / 2, Vt = Pm = dV dt / 2, no D terms in the noise), without the fixed
+    cost of some fifty numpy calls on one-sample arrays. dt float; w, f (K, 3)."""
+    dt = float(dt)
+    K = len(w)
+    packed, Sl, Ml, Swl, Mwl, Sal = [], [], [], [], [], []
+    for (wx, wy, wz), (fx, fy, fz) in zip(np.asarray(w, float).tolist(),
+                                         np.asarray(f, float).tolist()):
+        h = so3_exp_entries(0.5 * wx * dt, 0.5 * wy * dt, 0.5 * wz * dt)
+        Gm = so3_exp_entries(wx * dt, wy * dt, wz * dt)
+        S = [x * dt for x in h]
+        dx, dy, dz = (c * dt for c in _mv(h, fx, fy, fz))
+        Hh = [0.5 * x for x in S]                              # R_1 dt / 2
+        Dx = (0.0, -dz, dy, dz, 0.0, -dx, -dy, dx, 0.0)        # (dV x)
+        M = _mm(Dx, Hh)
+        hd = 0.5 * dt
+        packed.append(list(Gm) + S + M + [dx, dy, dz] + [dx * hd, dy * hd, dz * hd] * 2)
+        Sl.append(S)
+        Ml.append(M)
+        if i_sf is not None:
+            rv = (wx * dt, wy * dt, wz * dt)
+            Sw = [h[3 * i + j] * rv[j] for i in range(3) for j in range(3)]
+            Swl.append(Sw)
+            Mwl.append(_mm(Dx, [0.5 * x for x in Sw]))
+        if i_sa is not None:
+            fd = (fx * dt, fy * dt, fz * dt)
+            Sal.append([h[3 * i + j] * fd[j] for i in range(3) for j in range(3)])
+
+    def arr(rows, shape):
+        return np.array(rows).reshape((K, 1) + shape)
+
+    S, M = arr(Sl, (3, 3)), arr(Ml, (3, 3))
+    P = arr(packed, (36,))
+    Q = np.broadcast_to(white_noise_rate(noise, n) * dt, (K, 1, n, n))
+    return RunSums(np.array([dt]), P, P[..., 0:9].reshape(K, 1, 3, 3), S, M, P[..., 27:30],
+                   P[..., 30:33], P[..., 33:36], Q,
+                   arr(Swl, (3, 3)) if i_sf is not None else None,
+                   arr(Mwl, (3, 3)) if i_sf is not None else None,
+                   arr(Sal, (3, 3)) if i_sa is not None else None,
+                   float(np.abs(w).max()), float(np.abs(f).max()))
 
 
 # ------------------------------------------------------------------ one filter, one run
