@@ -290,6 +290,23 @@ class AtomicOutput:
             self._hidden.unlink()
 
 
+@contextmanager
+def atomic_outputs(outputs: dict):
+    """All of a tool's outputs or none: enters each :class:`AtomicOutput` of ``outputs``
+    ({name: AtomicOutput}) and yields it; when the block ends normally, commits them all
+    with the signals held back; in any case removes what was not committed."""
+    try:
+        for a in outputs.values():
+            a.__enter__()
+        yield outputs
+        with signals_deferred():
+            for a in outputs.values():
+                a.commit()
+    finally:
+        for a in outputs.values():
+            a.discard()
+
+
 # ----------------------------------------------------------------------------- writing
 _TYPESTORE = None
 

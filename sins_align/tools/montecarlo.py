@@ -57,15 +57,14 @@ import json
 import math
 import sys
 import time
-from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from sins_align.io.bagio import (AtomicOutput, CliError, check_new_output, cli_main,
-                                 finite_or_none, need_matplotlib, pyplot)
+from sins_align.io.bagio import (AtomicOutput, CliError, atomic_outputs, check_new_output,
+                                 cli_main, finite_or_none, need_matplotlib, pyplot)
 from sins_align.tools.simulate import specs_from_args
 from sins_align.core.earth import gravity
 from sins_align.core.models import MODELS
@@ -771,12 +770,9 @@ def run_study(args) -> int:
     except ValueError as e:
         raise CliError(str(e)) from None
     writers = {"json": write_json, "plot": studies.write_plot}
-    with ExitStack() as stack:
-        tmps = {w: stack.enter_context(AtomicOutput(p)) for w, p in outs.items()}
+    with atomic_outputs({w: AtomicOutput(p) for w, p in outs.items()}) as tmps:
         for w, tmp in tmps.items():
             writers[w](tmp.tmp, finite_or_none(res))
-        for tmp in tmps.values():
-            tmp.commit()
     if not args.quiet:
         print(studies.summary_text(res))
         for w, p in outs.items():
@@ -803,12 +799,9 @@ def run(argv: Sequence[str] | None = None) -> int:
             outs[what] = path
     res = run_montecarlo(scn, curves, chunk=args.chunk, tolerance=args.tolerance)
     writers = {"json": write_json, "csv": write_csv, "plot": write_plot}
-    with ExitStack() as stack:
-        tmps = {w: stack.enter_context(AtomicOutput(p)) for w, p in outs.items()}
+    with atomic_outputs({w: AtomicOutput(p) for w, p in outs.items()}) as tmps:
         for w, tmp in tmps.items():
             writers[w](tmp.tmp, res)
-        for tmp in tmps.values():
-            tmp.commit()
     if not args.quiet:
         print(summary_text(res))
         for w, p in outs.items():

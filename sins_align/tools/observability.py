@@ -45,9 +45,9 @@ from sins_align.analysis.observability import (DEGREE_WEAK, LEVER_STATES, RANK_R
                                                pieces_from_trajectory, scenario, verdict)
 from sins_align.core.rotation import dcm_from_rpy, so3_exp
 from sins_align.core.specs import DEG, DPH, UG, grade_specs
-from sins_align.io.bagio import (AtomicOutput, CliError, check_new_output, cli_main,
-                                 finite_or_none, need_matplotlib, one_line, pyplot,
-                                 signals_deferred)
+from sins_align.io.bagio import (AtomicOutput, CliError, atomic_outputs, check_new_output,
+                                 cli_main,
+                                 finite_or_none, need_matplotlib, one_line, pyplot)
 
 PROG = "observability"
 #: the singular-value floor of a bag's analysis: sensor noise in the measured specific force
@@ -387,20 +387,12 @@ def run(argv: Sequence[str] | None = None) -> int:
         res, _, _ = run_analysis(args)
     except ValueError as e:
         raise CliError(one_line(e)) from None
-    atomic = {w: AtomicOutput(p, force=args.force) for w, p in outs.items()}
-    try:
-        for a in atomic.values():
-            a.__enter__()
+    with atomic_outputs({w: AtomicOutput(p, force=args.force)
+                         for w, p in outs.items()}) as atomic:
         if "json" in atomic:
             atomic["json"].tmp.write_text(json.dumps(res, indent=1, allow_nan=False) + "\n")
         if "plot" in atomic:
             write_plot(atomic["plot"].tmp, res)
-        with signals_deferred():
-            for a in atomic.values():
-                a.commit()
-    finally:
-        for a in atomic.values():
-            a.discard()
     if not args.quiet:
         print(format_table(res))
         for what, p in outs.items():

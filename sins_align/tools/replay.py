@@ -85,10 +85,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks,
-                                 check_bag_dir_name, check_new_output, cli_main, deserialize,
+                                 atomic_outputs, check_bag_dir_name, check_new_output,
+                                 cli_main, deserialize,
                                  finite_or_none, need_matplotlib, one_line, open_reader,
                                  open_writer, pyplot, qos_profile, read_message_chunks,
-                                 read_messages, signals_deferred)
+                                 read_messages)
 from sins_align.io.cdr import (IMU_TYPE, ImuBatch, decode_imu_array, decode_imu_batch,
                                reader_imu_layout)
 from sins_align.estimators.quasi_static import AlignConfig
@@ -1155,10 +1156,8 @@ def run(argv: Sequence[str] | None = None) -> int:
     params = merged_params(values)
     euler_rate = float(node_only.get("euler_rate", EULER_RATE))
 
-    atomic = {w: AtomicOutput(p, is_dir=d, force=args.force) for w, (p, d) in outs.items()}
-    try:
-        for a in atomic.values():
-            a.__enter__()
+    with atomic_outputs({w: AtomicOutput(p, is_dir=d, force=args.force)
+                         for w, (p, d) in outs.items()}) as atomic:
         summary, session = replay(
             args.bag, config, topic=args.topic, truth_topic=args.truth_topic,
             output=atomic["bag"].tmp if "bag" in atomic else None,
@@ -1170,12 +1169,6 @@ def run(argv: Sequence[str] | None = None) -> int:
         if "summary" in atomic:
             atomic["summary"].tmp.write_text(json.dumps(summary, indent=2, allow_nan=False)
                                              + "\n")
-        with signals_deferred():        # all outputs, or none
-            for a in atomic.values():
-                a.commit()
-    finally:
-        for a in atomic.values():
-            a.discard()
     if not args.quiet:
         print_summary(summary, {w: str(p) for w, (p, _) in outs.items()})
     return 0

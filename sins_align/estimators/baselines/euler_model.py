@@ -39,6 +39,7 @@ import numpy as np
 from sins_align.core.earth import earth_rate_enu, gravity_enu
 from sins_align.core.preint import earth_poly, open_loop_velocity, prefix_rotations
 from sins_align.core.rotation import dcm_from_quat_components, so3_exp
+from sins_align.estimators.baselines.unscented import ErrorModel
 
 __all__ = ["euler_dcm", "dcm_euler", "StaticMechanization", "mechanize_static",
            "EulerErrorModel", "STATE_LABELS", "DPH_RAD", "MG"]
@@ -138,7 +139,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return S
 
 
-class EulerErrorModel:
+class EulerErrorModel(ErrorModel):
     """The 10-state nonlinear error model above, one step per mechanization step.
 
     Parameters
@@ -166,13 +167,6 @@ class EulerErrorModel:
         self._Q = np.diag(q)
         self.R = np.eye(2) * velocity_noise ** 2
         self.z = mech.v[1:, :, :2]                     # (K, N, 2)
-
-    @property
-    def steps(self) -> int:
-        return len(self.z)
-
-    def Q(self, k: int) -> np.ndarray:
-        return self._Q
 
     def propagate(self, X: np.ndarray, k: int) -> np.ndarray:
         """Step k (0-based: from t[k] to t[k+1]) of points X (N, ..., 10)."""

@@ -125,8 +125,30 @@ def fading_factor(V: np.ndarray, Pzz_no_noise: np.ndarray, R: np.ndarray) -> np.
     return np.maximum(1.0, num / np.maximum(den, 1e-300))
 
 
+# ----------------------------------------------------------------------------- models
+class ErrorModel:
+    """What the filters read of a model: ``n``, ``H``, ``R``, the measurements ``z`` (steps,
+    runs, m), ``Q(k)`` and ``propagate(X, k)`` (subclasses give the last)."""
+
+    n: int
+    H: np.ndarray
+    R: np.ndarray
+    z: np.ndarray | None
+    _Q: np.ndarray
+
+    @property
+    def steps(self) -> int:
+        return len(self.z)
+
+    def Q(self, k: int) -> np.ndarray:
+        return self._Q
+
+    def propagate(self, X: np.ndarray, k: int) -> np.ndarray:
+        raise NotImplementedError
+
+
 # ----------------------------------------------------------------------------- linear check
-class LinearGaussianModel:
+class LinearGaussianModel(ErrorModel):
     """x_k = F x_{k-1} + w, z_k = H x_k + v: the case where UKF and KF must agree exactly
     and where a consistent particle filter's mean converges to the KF's."""
 
@@ -138,13 +160,6 @@ class LinearGaussianModel:
         self.n = self.F.shape[0]
         #: measurements (K, runs, m) the filters' ``filter`` methods read
         self.z = None if z is None else np.asarray(z, dtype=float)
-
-    @property
-    def steps(self) -> int:
-        return len(self.z)
-
-    def Q(self, k: int) -> np.ndarray:
-        return self._Q
 
     def propagate(self, X: np.ndarray, k: int) -> np.ndarray:
         return X @ self.F.T
