@@ -528,3 +528,23 @@ def test_one_sample_sums_equal_the_vectorised_sums():
             x, y = getattr(a, k), getattr(b, k)
             assert x.shape == y.shape, k
             np.testing.assert_allclose(y, x, rtol=0, atol=1e-15, err_msg=k)
+
+
+def test_time_to_aligned_is_the_stamp_of_the_flag_change_in_any_block_size():
+    """Fed as one block, the flag still changes at the sample that met the criterion, and
+    time_to_aligned is that sample's time from the first (not the block's end)."""
+    r, n = _short_run(seconds=60.0)
+    out = []
+    for block in (n, 10, 1):
+        a = MotionAligner(_cfg())
+        ev = []
+        a.subscribe(lambda e: ev.append(e) if e.kind == "aligned" and e.value else None)
+        for tg, vg in zip(r.gnss_t, r.gnss_v):
+            a.add_velocity(tg, vg)
+        for k in range(0, n, block):
+            e = min(k + block, n)
+            a.update(r.t[k + 1:e + 1], r.gyro[k:e], r.accel[k:e])
+        assert ev, "never aligned"
+        assert a.time_to_aligned == pytest.approx(ev[0].stamp - r.t[1], abs=1e-9)
+        out.append(a.time_to_aligned)
+    assert max(out) - min(out) < 0.05, out

@@ -540,16 +540,24 @@ class ReplaySession:
             for i in range(1, n):
                 if frames[i] != frames[i - 1]:
                     cut[i] = True
-        reach = None
+        reach, ahead = None, False
         if self._refs:      # each before the first sample whose stamp is not earlier
             reach = np.maximum.accumulate(ns)           # (as on_imu, stamps out of order too)
             last = int(reach[-1])
-            stamps = [r[0] for r in itertools.takewhile(lambda r: r[0] <= last, self._refs)]
+            refs = list(itertools.takewhile(lambda r: r[0] <= last, self._refs))
+            # Velocities are applied at their stamps wherever they come from: on a clean
+            # piece (stamps increasing, no gap that restarts the estimator and clears what
+            # it holds) those of a whole piece go in before it, and the in-motion estimator
+            # sums the runs between them at once. A position is applied on arrival: cut there.
+            d = np.diff(t)
+            ahead = bool(self.motion and np.all(d > 0)
+                         and not np.any(d > self.al.config.max_gap))
+            stamps = [r[0] for r in refs if not (ahead and r[1] == "velocity")]
             cut[np.searchsorted(reach, np.array(stamps, dtype=np.int64), side="left")] = True
         bounds = np.flatnonzero(cut).tolist()
         for a, b in zip(bounds, bounds[1:]):
             if reach is not None:
-                self._feed_refs(int(reach[a]))
+                self._feed_refs(int(reach[b - 1] if ahead else reach[a]))
             before = self.al.aligned
             if self.session.feed_block(t[a:b], w[a:b], f[a:b]):
                 self.last_frame_id = frames[a]

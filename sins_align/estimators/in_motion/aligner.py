@@ -686,7 +686,9 @@ class MotionAligner(EventSource, AttitudeReadout):
         if now != self._aligned:
             self._aligned = now
             if now and self.time_to_aligned is None:
-                self.time_to_aligned = self.elapsed
+                # from the stamp it happened at (t_last may be a block's end already)
+                self.time_to_aligned = (self.elapsed if stamp is None
+                                        else float(stamp) - self.t_first)
             self._emit("aligned", stamp, now)
 
     # ------------------------------------------------------------------ summary
