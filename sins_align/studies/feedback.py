@@ -16,7 +16,7 @@ the feedback loop alone); ``unknown_95``: start off by [3, 4, 95] deg, heading u
 
 Metrics per variant over the runs (the published state after each 10 Hz update): heading
 overshoot (per run, how far the yaw error swings past zero, opposite to its sign when it
-first comes within 8 deg, max over the runs, deg); settling time (|yaw error| <= 1 deg and
+comes within 8 deg for good, max over the runs, deg); settling time (|yaw error| <= 1 deg and
 level <= 0.1 deg to the end, median); final error (``final_error_deg``, phi E/N/U); RMSE
 after 100 s (roll, pitch, heading); honesty: % of instants with the error beyond 3 sigma
 of the published covariance on some axis; CPU time.
@@ -41,15 +41,16 @@ CASES = {"guess_25": ((3.0, 4.0, 25.0), 30.0), "unknown_95": ((3.0, 4.0, 95.0), 
 
 
 def _overshoot(yaw: np.ndarray, band: float) -> np.ndarray:
-    """Per run (columns of yaw (T, R), deg): max swing past zero after the first entry into
-    the band, opposite to the sign the error had there (0 if never in the band)."""
+    """Per run (columns of yaw (T, R), deg): max swing past zero once the error has entered
+    the band for good (a bank of hypotheses may publish another hypothesis before), opposite
+    to the sign the error had there (0 if it never stays in the band)."""
     out = np.zeros(yaw.shape[1])
     for r in range(yaw.shape[1]):
         y = yaw[:, r]
-        inside = np.flatnonzero(np.abs(np.nan_to_num(y, nan=1e9)) <= band)
-        if not len(inside):
+        outside = np.flatnonzero(~(np.abs(np.nan_to_num(y, nan=1e9)) <= band))
+        k = 0 if not len(outside) else outside[-1] + 1
+        if k >= len(y):
             continue
-        k = inside[0]
         s = np.sign(y[k]) or 1.0
         out[r] = max(0.0, float(np.nanmax(-s * y[k:])))
     return out
