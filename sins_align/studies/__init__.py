@@ -12,9 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Callable
 
-from sins_align.studies import seed004
+from sins_align.studies import feedback, seed003, seed004
 
-_MODULES = {"seed004": seed004}
+_MODULES = {"seed004": seed004, "seed003": seed003, "feedback": feedback}
 STUDIES: dict[str, Callable[..., dict[str, Any]]] = {k: m.run for k, m in _MODULES.items()}
 
 __all__ = ["STUDIES", "summary_text", "write_plot"]

@@ -38,7 +38,8 @@ from sins_align.core.rotation import attitude_error, dcm_from_quat, dcm_from_rpy
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion.config import MotionConfig
-from sins_align.estimators.in_motion.feedback import LqrFeedback, lqr_gain
+from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFeedback,
+                                                      lqr_gain)
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel)
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
@@ -385,6 +386,8 @@ class MotionAligner(EventSource, AttitudeReadout):
                                 extra=extra)
         if c.feedback == "lqr":
             self.ekf.schedule = LqrFeedback(lqr_gain(n, lat, g, c.lqr_time_constant))
+        elif c.feedback == "fraction":
+            self.ekf.schedule = FractionalFeedback(n, c.feedback_fraction)
         self.ekf.w_last = np.tile(ws[-1], (K, 1))
         self.ekf.f_last = np.tile(fs[-1], (K, 1))
         self._logw = np.full(K, -math.log(K))

@@ -11,7 +11,7 @@ from sins_align.core.specs import SensorSpecs, grade_specs
 #: vehicle kinds: 'ground' adds the non-holonomic constraint (no lateral body velocity)
 VEHICLES = ("ground", "air", "marine")
 #: feedback of the estimated errors into the state
-FEEDBACKS = ("full", "lqr")
+FEEDBACKS = ("full", "lqr", "fraction")
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,9 @@ class MotionConfig:
     feedback : 'full' (the estimated errors are removed from the state after every update:
         the default, and the strapdown practice) or 'lqr' (seed 002: the error estimate is
         carried on and removed gradually through LQR-designed gains,
-        :mod:`~sins_align.estimators.in_motion.feedback`).
+        :mod:`~sins_align.estimators.in_motion.feedback`) or 'fraction' (carried on, and a
+        constant ``feedback_fraction`` of it removed after every update).
+    feedback_fraction : the fraction of 'fraction' feedback, within (0, 1].
     lqr_time_constant : s — the time constant the LQR weights aim at.
     nis_inflate : a measurement whose normalised innovation per degree of freedom exceeds this
         has its noise inflated until it equals it (large early transients, skids, outliers).
@@ -93,6 +95,7 @@ class MotionConfig:
     nis_inflate: float = 5.0
     feedback: str = "full"
     lqr_time_constant: float = 5.0
+    feedback_fraction: float = 0.5
     max_gap: float = 1.0
     max_angular_rate: float = 10.0
     specific_force_max: float = 160.0
@@ -119,6 +122,10 @@ class MotionConfig:
                              f"{self.heading_hypotheses!r}")
         if self.feedback not in FEEDBACKS:
             raise ValueError(f"feedback must be one of {FEEDBACKS}, got {self.feedback!r}")
+        if not (isinstance(self.feedback_fraction, (int, float))
+                and 0.0 < self.feedback_fraction <= 1.0):
+            raise ValueError(f"feedback_fraction must be within (0, 1], got "
+                             f"{self.feedback_fraction!r}")
         if self.nhc_axis not in (0, 1, 2):
             raise ValueError(f"nhc_axis must be 0, 1 or 2, got {self.nhc_axis!r}")
         if not (-90.0 < self.latitude_deg < 90.0):

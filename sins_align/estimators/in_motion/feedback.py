@@ -25,7 +25,7 @@ from scipy.linalg import expm, solve_continuous_are
 from sins_align.core.earth import OMEGA_IE
 from sins_align.core.rotation import skew
 
-__all__ = ["lqr_gain", "LqrFeedback"]
+__all__ = ["lqr_gain", "LqrFeedback", "FractionalFeedback"]
 
 
 def lqr_gain(n: int, lat_rad: float, g: float, tau: float) -> np.ndarray:
@@ -60,3 +60,19 @@ class LqrFeedback:
             if len(self._cache) < 10000:
                 self._cache[key] = G
         return G
+
+
+class FractionalFeedback:
+    """A constant fraction of the carried error estimate fed back after every update
+    (``G = fraction I`` whatever the time since the last feedback): the simplest schedule
+    between full reset (``fraction`` 1) and none, the third option of the ``feedback`` study
+    (``MotionConfig(feedback="fraction", feedback_fraction=...)``)."""
+
+    def __init__(self, n: int, fraction: float):
+        if not (0.0 < fraction <= 1.0):
+            raise ValueError(f"fraction must be within (0, 1], got {fraction!r}")
+        self.fraction = float(fraction)
+        self._G = np.eye(n) * self.fraction
+
+    def __call__(self, T: float) -> np.ndarray:
+        return self._G
