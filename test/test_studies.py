@@ -5,6 +5,8 @@ import json
 import numpy as np
 import pytest
 
+from study_helpers import assert_filter_schema
+
 from sins_align.studies import STUDIES, seed004, summary_text
 from sins_align.tools.montecarlo import main as montecarlo_main
 
@@ -19,13 +21,7 @@ def test_seed004_schema(short_run):
     assert res["study"] == "seed004" and res["axes"] == ["E", "N", "U"]
     fl = res["cases"]["clean"]["filters"]
     assert set(fl) == {"ours", "ukf", "upf", "aupf"}
-    for name, r in fl.items():
-        for k in ("mean", "rmse"):
-            assert len(r["final_error_deg"][k]) == 3
-            assert all(np.isfinite(r["final_error_deg"][k]))
-        assert r["cpu_s"] > 0
-        for k in ("time_to_level_s", "time_to_heading_s"):
-            assert r[k] is None or 0 <= r[k] <= 240
+    assert_filter_schema(fl, 240)
     assert res["paper"]["clean"]["aupf"]["mean_pitch_roll_heading_deg"][2] == -0.8609
     json.dumps(res, allow_nan=False)
     assert "ours" in summary_text(res)

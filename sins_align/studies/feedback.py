@@ -29,7 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from sins_align.studies import seed003
-from sins_align.studies.seed004 import _median_or_none, settle_time
+from sins_align.studies.common import median_or_none, settle_time
 
 __all__ = ["run", "summary_text", "write_plot", "VARIANTS", "CASES"]
 
@@ -94,7 +94,7 @@ def run(runs: int = 4, seed: int = 0, duration: float | None = None,
                 rms_t = np.sqrt(np.nanmean(de[step - 1::step] ** 2, axis=1))
             res_v[v] = {**m, "overshoot_heading_deg": {"max": float(ov.max()),
                                                         "median": float(np.median(ov))},
-                        "settling_time_s": _median_or_none(settle),
+                        "settling_time_s": median_or_none(settle),
                         "settled_runs": int(np.isfinite(settle).sum()),
                         "config": VARIANTS[v], "cpu_s": cpu, "cpu_s_per_run": cpu / runs,
                         "series": {"time_s": times[step - 1::step].tolist(),

@@ -39,7 +39,6 @@ own covariance on some axis (honesty); CPU time (process time, all runs).
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -52,7 +51,7 @@ from sins_align.estimators.baselines.velocity_aided import (IBA, IBG, IDR, IDV, 
 from sins_align.estimators.in_motion import MotionAligner, MotionConfig
 from sins_align.estimators.in_motion.filter import InvariantEKF
 from sins_align.sim.trajectory import SEED003_SPECS, simulate_trajectory, uav_seed003
-from sins_align.studies.seed004 import _median_or_none, settle_time
+from sins_align.studies.common import error_grid, median_or_none, settle_time
 
 __all__ = ["run", "summary_text", "write_plot", "SCENARIO", "PAPER", "CASES", "FILTERS",
            "simulate_runs", "run_filter"]
@@ -229,8 +228,8 @@ def metrics(times, C_true, C_est, cov, rms_after, level_band, heading_band):
         "rmse_after_deg": {"roll": float(rms[0]), "pitch": float(rms[1]),
                            "heading": float(rms[2])},
         "final_yaw_error_deg": de[-1, :, 2].tolist(),
-        "time_to_level_s": _median_or_none(lvl),
-        "time_to_heading_s": _median_or_none(hdg),
+        "time_to_level_s": median_or_none(lvl),
+        "time_to_heading_s": median_or_none(hdg),
         "level_settled_runs": int(np.isfinite(lvl).sum()),
         "heading_settled_runs": int(np.isfinite(hdg).sum()),
         "heading_diverged_runs": int((~(fin_yaw <= heading_band)).sum()),
@@ -330,33 +329,10 @@ def summary_text(res: dict[str, Any]) -> str:
 
 def write_plot(path, res: dict[str, Any]) -> None:
     """RMS error over the runs against time: rows = cases, columns = roll, pitch, heading."""
-    from sins_align.io.bagio import pyplot
+    band = res["bands_deg"]["heading"]
+    error_grid(path, res, "rms_roll_pitch_yaw_deg", ("roll", "pitch", "heading"),
+               "RMS error, deg",
+               f"{res['study']}: {res['scenario']['runs']} runs of uav_seed003, GNSS velocity",
+               lambda c, j: (band, dict(color="k", ls=":", lw=0.8)) if j == 2 else None)
 
-    plt = pyplot()
-    cases = list(res["cases"])
-    fig, axes = plt.subplots(len(cases), 3, figsize=(13, 3.2 * len(cases)), squeeze=False,
-                             sharex=True)
-    for i, case in enumerate(cases):
-        c = res["cases"][case]
-        for j, ax in enumerate(axes[i]):
-            for k, (f, r) in enumerate(c["filters"].items()):
-                tt = np.array(r["series"]["time_s"], float)
-                y = np.array([np.nan if v is None else v for v in
-                              np.array(r["series"]["rms_roll_pitch_yaw_deg"], object)[:, j]],
-                             float)
-                ax.semilogy(tt, y, color=f"C{k}", lw=1.2, label=f)
-            if j == 2:
-                ax.axhline(res["bands_deg"]["heading"], color="k", ls=":", lw=0.8)
-            ax.set_title(f"{case}: {('roll', 'pitch', 'heading')[j]}", fontsize="medium")
-            ax.grid(True, alpha=0.3)
-            if j == 0:
-                ax.set_ylabel("RMS error, deg")
-    axes[0][0].legend(fontsize="small")
-    for ax in axes[-1]:
-        ax.set_xlabel("time, s")
-    fig.suptitle(f"{res['study']}: {res['scenario']['runs']} runs of uav_seed003, GNSS velocity",
-                 fontsize="medium")
-    fig.tight_layout()
-    fig.savefig(Path(path), format="png", dpi=90)
-    plt.close(fig)
 

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -46,6 +45,7 @@ from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ, SensorSpecs, limi
 from sins_align.core.earth import gravity
 from sins_align.estimators.baselines import BASELINES, BaselineConfig, euler_dcm
 from sins_align.estimators.quasi_static import AlignConfig, AlignmentFilter
+from sins_align.studies.common import error_grid, median_or_none, settle_time
 
 __all__ = ["run", "summary_text", "write_plot", "SCENARIO", "PAPER", "CASES", "FILTERS"]
 
@@ -118,19 +118,6 @@ def run_ours(dt: float, gyro, accel, C_est0, samples_per_output: int) -> np.ndar
     return out
 
 
-def settle_time(ok: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Per run: first time after which ``ok`` (T, n) stays true to the end (inf = never)."""
-    bad = ~ok
-    last_bad = np.where(bad.any(axis=0), len(ok) - 1 - np.argmax(bad[::-1], axis=0), -1)
-    return np.append(times, np.inf)[last_bad + 1]
-
-
-def _median_or_none(st: np.ndarray):
-    """Median over the runs; None when it is infinite (half of the runs or more never)."""
-    m = float(np.median(st)) if len(st) else math.inf
-    return m if math.isfinite(m) else None
-
-
 def run(runs: int = 4, seed: int = 0, duration: float | None = None, particles: int = 100,
         filters: Sequence[str] = FILTERS, cases: Sequence[str] = tuple(CASES),
         weights: str = "predictive", chunk: int = 8, level_band_deg: float = 0.1,
@@ -190,8 +177,8 @@ def run(runs: int = 4, seed: int = 0, duration: float | None = None, particles: 
             res_f[f] = {
                 "final_error_deg": {"mean": fin.mean(axis=0).tolist(),
                                     "rmse": np.sqrt((fin ** 2).mean(axis=0)).tolist()},
-                "time_to_level_s": _median_or_none(lvl),
-                "time_to_heading_s": _median_or_none(hdg),
+                "time_to_level_s": median_or_none(lvl),
+                "time_to_heading_s": median_or_none(hdg),
                 "level_settled_runs": int(np.isfinite(lvl).sum()),
                 "heading_settled_runs": int(np.isfinite(hdg).sum()),
                 "cpu_s": cpu[f],
@@ -257,32 +244,12 @@ def summary_text(res: dict[str, Any]) -> str:
 
 def write_plot(path, res: dict[str, Any]) -> None:
     """RMS error against time, rows = cases, columns = E, N, U (log scale)."""
-    from sins_align.io.bagio import pyplot
+    def limit(c, j):
+        lim = abs(c["limit_error_deg"]["mean"][j])
+        return (lim, dict(color="k", ls="--", lw=0.8, label="limit")) if lim > 0 else None
 
-    plt = pyplot()
-    cases = list(res["cases"])
-    fig, axes = plt.subplots(len(cases), 3, figsize=(13, 3.2 * len(cases)), squeeze=False,
-                             sharex=True)
-    for i, case in enumerate(cases):
-        c = res["cases"][case]
-        for j, ax in enumerate(axes[i]):
-            for k, (f, r) in enumerate(c["filters"].items()):
-                tt = np.array(r["series"]["time_s"])
-                y = np.array(r["series"]["rms_deg"])[:, j]
-                ax.semilogy(tt, y, color=f"C{k}", lw=1.2, label=f)
-            lim = abs(c["limit_error_deg"]["mean"][j])
-            if lim > 0:
-                ax.axhline(lim, color="k", ls="--", lw=0.8, label="limit")
-            ax.set_title(f"{case}: phi_{'ENU'[j]}", fontsize="medium")
-            ax.grid(True, alpha=0.3)
-            if j == 0:
-                ax.set_ylabel("RMS |error|, deg")
-    axes[0][0].legend(fontsize="small")
-    for ax in axes[-1]:
-        ax.set_xlabel("time, s")
-    fig.suptitle(f"seed004: {res['scenario']['runs']} runs, static 32.37 deg N, initial Euler "
-                 f"error {list(res['scenario']['initial_euler_error_deg'])} deg",
-                 fontsize="medium")
-    fig.tight_layout()
-    fig.savefig(Path(path), format="png", dpi=90)
-    plt.close(fig)
+    error_grid(path, res, "rms_deg", ("phi_E", "phi_N", "phi_U"), "RMS |error|, deg",
+               f"seed004: {res['scenario']['runs']} runs, static 32.37 deg N, initial Euler "
+               f"error {list(res['scenario']['initial_euler_error_deg'])} deg", limit)
+
+
