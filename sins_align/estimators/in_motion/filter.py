@@ -348,7 +348,7 @@ class InvariantEKF:
             while j < len(pieces) and pieces[j] - a <= size:
                 j += 1
             b = pieces[j - 1]
-            lin = self._linearisation(gyro[..., a:b, :], accel[..., a:b, :])
+            lin = _Linearisation(self, gyro[..., a:b, :], accel[..., a:b, :])
             if b - a == 1:
                 sums = one_sample_sums(dt[a], lin.w[:, 0], lin.f[:, 0], self.noise, self.n,
                                        self.i_sf, self.i_sa)
@@ -368,9 +368,6 @@ class InvariantEKF:
             size = max(1, (pieces[q - 1] - a) // 2) if q < j else min(2 * size,
                                                                         _CHUNK_SAMPLES)
             i = q
-
-    def _linearisation(self, gyro, accel) -> "_Linearisation":
-        return _Linearisation(self, gyro, accel)
 
     def _advance(self, s, r, lin, gyro_end, accel_end) -> None:
         """Apply run r of the sums ``s`` (bias-corrected to first order) to every filter."""

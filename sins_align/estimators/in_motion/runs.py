@@ -101,32 +101,35 @@ def mT(a):
 
 @dataclass
 class RunSums:
-    """The sums of R runs for K filters, each array (K, R, ...) (the run's start frame):
+    """The sums of R runs for K filters, each array (K, R, ...) (the run's start frame).
 
-    T (R,) durations, s; Gm the rotation over the run; S = sum R_j dt_j; M = sum (dV_j x)
-    (S_j - R_j dt_j / 2); V = sum dV_j; Vt = sum dV_j t_j (t_j: the middle of sample j from
-    the run's start); Pm = sum (V_{j-1} + dV_j / 2) dt_j (the integral of V); Sw, Mw and Sa:
-    the scale-factor sums (None without those states); packed (K, R, 36): Gm, S, M (row
-    by row), V, Vt and Pm side by side (what :func:`advance_navigation` reads); Phi, Q
-    (K, R, n, n): the run's
-    transition and process noise; w_max, f_max: the largest corrected rate and specific
-    force (for the re-linearisation test).
+    T (R,) durations, s; packed (K, R, 36): the run's rotation Gm, S = sum R_j dt_j and
+    M = sum (dV_j x) (S_j - R_j dt_j / 2) (row by row), V = sum dV_j, Vt = sum dV_j t_j
+    (t_j: the middle of sample j from the run's start) and Pm = sum (V_{j-1} + dV_j / 2)
+    dt_j (the integral of V), side by side (what :func:`advance_navigation` reads; the
+    properties give each as an array); Q (K, R, n, n): the run's process noise; Sw, Mw and
+    Sa: the scale-factor sums (None without those states); w_max, f_max: the largest
+    corrected rate and specific force (for the re-linearisation test).
     """
 
     T: np.ndarray
     packed: np.ndarray
-    Gm: np.ndarray
-    S: np.ndarray
-    M: np.ndarray
-    V: np.ndarray
-    Vt: np.ndarray
-    Pm: np.ndarray
     Q: np.ndarray
     Sw: np.ndarray | None
     Mw: np.ndarray | None
     Sa: np.ndarray | None
     w_max: float
     f_max: float
+
+    def _mat(self, i):
+        return self.packed[..., i:i + 9].reshape(self.packed.shape[:-1] + (3, 3))
+
+    Gm = property(lambda self: self._mat(0))
+    S = property(lambda self: self._mat(9))
+    M = property(lambda self: self._mat(18))
+    V = property(lambda self: self.packed[..., 27:30])
+    Vt = property(lambda self: self.packed[..., 30:33])
+    Pm = property(lambda self: self.packed[..., 33:36])
 
 
 def _within(cum, starts, run_id):
@@ -196,21 +199,18 @@ def run_sums(dt, w, f, ends, noise, n: int, i_sf=None, i_sa=None) -> RunSums:
         Mw = GsT @ np.add.reduceat(dVx @ (Sw_in - 0.5 * Rrv), starts, axis=1)
     if i_sa is not None:
         Sa = GsT @ np.add.reduceat(Rm * (f * dtc)[:, :, None, :], starts, axis=1)
-    qg, qa = noise.gyro_arw ** 2, noise.accel_vrw ** 2
-    Tc = T[None, :, None, None]
-    Q = np.zeros((K, R, n, n))
-    Q[..., 0:3, 0:3] = qg * Tc * _I3
+    # white noise after every sample, and the gyro's through the velocity increments
+    qg = noise.gyro_arw ** 2
+    Q = np.broadcast_to(white_noise_rate(noise, n) * T[:, None, None], (K, R, n, n)).copy()
     c = qg * (GeT @ skew(Ag) @ Ge)
     Q[..., 0:3, 3:6] = c
     Q[..., 3:6, 0:3] = mT(c)
-    Q[..., 3:6, 3:6] = qa * Tc * _I3 + qg * (GeT @ Bg @ Ge)
-    Q[..., 6:9, 6:9] = noise.gyro_bias_walk ** 2 * Tc * _I3
-    Q[..., 9:12, 9:12] = noise.accel_bias_walk ** 2 * Tc * _I3
+    Q[..., 3:6, 3:6] += qg * (GeT @ Bg @ Ge)
     w_max = float(np.abs(w).max()) if w.size else 0.0
     f_max = float(np.abs(f).max()) if f.size else 0.0
     packed = np.concatenate([Gm.reshape(K, R, 9), S.reshape(K, R, 9), M.reshape(K, R, 9),
                              V, Vt, Pm], axis=-1)
-    return RunSums(T, packed, Gm, S, M, V, Vt, Pm, Q, Sw, Mw, Sa, w_max, f_max)
+    return RunSums(T, packed, Q, Sw, Mw, Sa, w_max, f_max)
 
 
 @functools.lru_cache(maxsize=16)
@@ -232,7 +232,7 @@ def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> Run
     cost of some fifty numpy calls on one-sample arrays. dt float; w, f (K, 3)."""
     dt = float(dt)
     K = len(w)
-    packed, Sl, Ml, Swl, Mwl, Sal = [], [], [], [], [], []
+    packed, Swl, Mwl, Sal = [], [], [], []
     for (wx, wy, wz), (fx, fy, fz) in zip(np.asarray(w, float).tolist(),
                                          np.asarray(f, float).tolist()):
         h = so3_exp_entries(0.5 * wx * dt, 0.5 * wy * dt, 0.5 * wz * dt)
@@ -244,8 +244,6 @@ def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> Run
         M = _mm(Dx, Hh)
         hd = 0.5 * dt
         packed.append(list(Gm) + S + M + [dx, dy, dz] + [dx * hd, dy * hd, dz * hd] * 2)
-        Sl.append(S)
-        Ml.append(M)
         if i_sf is not None:
             rv = (wx * dt, wy * dt, wz * dt)
             Sw = [h[3 * i + j] * rv[j] for i in range(3) for j in range(3)]
@@ -258,11 +256,8 @@ def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> Run
     def arr(rows, shape):
         return np.array(rows).reshape((K, 1) + shape)
 
-    S, M = arr(Sl, (3, 3)), arr(Ml, (3, 3))
-    P = arr(packed, (36,))
     Q = np.broadcast_to(white_noise_rate(noise, n) * dt, (K, 1, n, n))
-    return RunSums(np.array([dt]), P, P[..., 0:9].reshape(K, 1, 3, 3), S, M, P[..., 27:30],
-                   P[..., 30:33], P[..., 33:36], Q,
+    return RunSums(np.array([dt]), arr(packed, (36,)), Q,
                    arr(Swl, (3, 3)) if i_sf is not None else None,
                    arr(Mwl, (3, 3)) if i_sf is not None else None,
                    arr(Sal, (3, 3)) if i_sa is not None else None,
