@@ -548,3 +548,28 @@ def test_time_to_aligned_is_the_stamp_of_the_flag_change_in_any_block_size():
         assert a.time_to_aligned == pytest.approx(ev[0].stamp - r.t[1], abs=1e-9)
         out.append(a.time_to_aligned)
     assert max(out) - min(out) < 0.05, out
+
+
+def test_one_sample_checks_equal_the_block_checks():
+    """A live stream's samples are checked one at a time in scalar arithmetic: the same
+    rules in the same order as a block's (rejections by reason, samples used)."""
+    r, n = _short_run(12.0)
+    k0 = 1100
+    t, w, f = r.t[k0 + 1:k0 + 13].copy(), r.gyro[k0:k0 + 12].copy(), r.accel[k0:k0 + 12].copy()
+    w[1, 0] = np.nan                     # nonfinite
+    f[2] = 0.0                           # gravity removed
+    f[3] *= 1e3                          # specific force out of range
+    w[4] = 50.0                          # rate too high
+    t[6] = t[5]                          # duplicate stamp
+    t[8] = t[7] - 0.05                   # backwards
+    t[10] = np.inf                       # nonfinite stamp
+    a, b = MotionAligner(_cfg()), MotionAligner(_cfg())
+    for al in (a, b):
+        for tg, vg in zip(r.gnss_t, r.gnss_v):
+            al.add_velocity(tg, vg)
+        al.update(r.t[1:k0 + 1], r.gyro[:k0], r.accel[:k0])
+    used_a = a.update(t, w, f)
+    used_b = sum(b.update(t[i], w[i], f[i]) for i in range(len(t)))
+    assert used_a == used_b == 5
+    assert a.rejected == b.rejected and sum(a.rejected.values()) == 7, a.rejected
+    assert a.samples_used == b.samples_used

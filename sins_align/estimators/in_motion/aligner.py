@@ -507,7 +507,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         for a in redo + [item]:
             bisect.insort(self._pending, a)
         self._nis = deque(x for x in self._nis if x[0] <= t_s)
-        self._nis_sum = [sum(n * d for _, n, d in self._nis), sum(d for *_, d in self._nis)]
+        self._nis_resum()
         tt, ww, ff = self._history_after(t_s)
         self.events["rewinds"] += 1
         self._replaying = True
@@ -650,7 +650,11 @@ class MotionAligner(EventSource, AttitudeReadout):
             s[0] -= n * d
             s[1] -= d
         if len(self._nis) == 1 or s[0] < 0.0:      # no rounding left behind
-            s[0] = sum(n * d for _, n, d in self._nis)
+            self._nis_resum()
+
+    def _nis_resum(self):
+        """The window's sums (nis * dof, dof) computed anew from its entries."""
+        self._nis_sum = [sum(n * d for _, n, d in self._nis), sum(d for *_, d in self._nis)]
 
     def _snapshot(self, t=None):
         if self.ekf is None:
