@@ -40,12 +40,11 @@ class Backtrack:
         dt, w, f, gap, hole, bridge = self._buf.arrays()
         # the analyses of the buffer see a gap as one sample of its bridging means (the time
         # line stays whole: Earth rate and gravity are matched against time)
-        adt, aw, af = bridged(dt, w, f, gap, bridge)
-        k = np.flatnonzero(gap > 0.0)
-        # the samples that stand for missing ones: those bridged() put in the gaps, and those
-        # that span a short hole themselves (an interval well above the usual)
-        bridging = adt > 1.5 * np.median(adt) if len(adt) else np.zeros(0, dtype=bool)
-        bridging[k + np.arange(len(k))] = True
+        adt, aw, af, bridging = bridged(dt, w, f, gap, bridge)
+        # the samples that stand for missing ones: those put in the gaps, and those that
+        # span a short hole themselves (an interval well above the usual)
+        if len(adt):
+            bridging |= adt > 1.5 * np.median(adt)
         u = start_frame_increments(adt, aw, af)     # shared by the two analyses
         C0, std0, v0 = self._fine_start(C0, adt, aw, af, u)
         r_std, self.fine_period, q = self._sway_velocity_std(C0, adt, aw, af, u, bridging)
@@ -179,11 +178,11 @@ class Backtrack:
         explain): with the configured density the filter would fit the random walk as
         attitude error and publish a heading std tens of times too small.
 
-        ``bridging`` (bool per sample) marks the samples that stand for missing ones: the velocity
-        error a hole leaves is a step of the kind a random walk makes, and it is accounted for
-        by the hole's own variance; the noise measurement leaves out the intervals that hold
-        one (on the real laser-gyro log, 1 % of the samples dropped made the complete log's
-        in-spec noise look 15 times the specs).
+        ``bridging`` (bool per sample) marks the samples that stand for missing ones: the
+        velocity error a hole leaves is a step of the kind a random walk makes, and it is
+        accounted for by the hole's own variance; the noise measurement leaves out the
+        intervals that hold one (on the real laser-gyro log, 1 % of the samples dropped in
+        bursts made the complete log's in-spec noise look 17 times the specs).
 
         Returns
         -------
@@ -249,13 +248,13 @@ class Backtrack:
             # the sway's direction in the estimated frame moves with the heading error: a
             # horizontal axis is as noisy as the noisier one
             var[:, :2] = var[:, :2].max(axis=1, keepdims=True)
-            period, r_std, q_at = p, np.sqrt(np.maximum(var, floor2)), q
+            period, r_std = p, np.sqrt(np.maximum(var, floor2))
             if np.all(white_d):
                 break
         if r_std is None:
             floor2 = q_cfg * base / 3.0 + c.fine_min_velocity_noise ** 2
-            r_std, q_at = np.full((self.n, 3), math.sqrt(floor2)), q
-        return r_std, period, q_at
+            r_std = np.full((self.n, 3), math.sqrt(floor2))
+        return r_std, period, q
 
     def _set_velocity_noise(self, q: np.ndarray):
         """The fine pass's velocity random walk density (N,), (m/s)^2/s: the process noise
@@ -309,15 +308,18 @@ def velocity_random_walk(d: np.ndarray, p: float, q0: float = 0.0, z: float = 2.
 
 def bridged(dt, w, f, gap, bridge):
     """dt, w, f with a sample of the bridging means (rate, specific force) and the gap's
-    length put before each sample that follows a gap (the buffer as the filter ran it)."""
+    length put before each sample that follows a gap (the buffer as the filter ran it),
+    and a mask of the samples put in."""
     k = np.flatnonzero(gap > 0.0)
+    put = np.zeros(len(dt) + len(k), dtype=bool)
     if not len(k):
-        return dt, w, f
+        return dt, w, f, put
     n = w.shape[1]
+    put[k + np.arange(len(k))] = True
     dt = np.insert(dt, k, gap[k])
     w = np.insert(w, k, np.broadcast_to(bridge[k, None, :3], (len(k), n, 3)), axis=0)
     f = np.insert(f, k, np.broadcast_to(bridge[k, None, 3:], (len(k), n, 3)), axis=0)
-    return dt, w, f
+    return dt, w, f, put
 
 
 class SampleBuffer:
