@@ -7,7 +7,14 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["settle_time", "median_or_none", "error_grid"]
+__all__ = ["settle_time", "median_or_none", "error_grid", "check_names"]
+
+
+def check_names(study: str, what: str, given, allowed) -> None:
+    """ValueError naming the first of ``given`` that is not one of ``allowed``."""
+    for x in given:
+        if x not in allowed:
+            raise ValueError(f"{study}: unknown {what} {x!r}; choose from {tuple(allowed)}")
 
 
 def settle_time(ok: np.ndarray, times: np.ndarray) -> np.ndarray:

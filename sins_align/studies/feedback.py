@@ -29,7 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from sins_align.studies import seed003
-from sins_align.studies.common import median_or_none, settle_time
+from sins_align.studies.common import check_names, median_or_none, settle_time
 
 __all__ = ["run", "summary_text", "write_plot", "VARIANTS", "CASES"]
 
@@ -63,12 +63,8 @@ def run(runs: int = 4, seed: int = 0, duration: float | None = None,
     duration = float(seed003.SCENARIO["duration_s"] if duration is None else duration)
     if runs < 1 or not (2.0 <= duration <= 1000.0):
         raise ValueError("feedback: runs >= 1 and 2 s <= duration <= 1000 s")
-    for v in variants:
-        if v not in VARIANTS:
-            raise ValueError(f"feedback: unknown variant {v!r}; choose from {tuple(VARIANTS)}")
-    for c in cases:
-        if c not in CASES:
-            raise ValueError(f"feedback: unknown case {c!r}; choose from {tuple(CASES)}")
+    check_names("feedback", "variant", variants, VARIANTS)
+    check_names("feedback", "case", cases, CASES)
     rms_after = min(seed003.SCENARIO["rms_after_s"], 0.5 * duration)
     t_wall = time.perf_counter()
     data = seed003.simulate_runs([seed + i for i in range(runs)], duration)

@@ -51,7 +51,7 @@ from sins_align.estimators.baselines.velocity_aided import (IBA, IBG, IDR, IDV, 
 from sins_align.estimators.in_motion import MotionAligner, MotionConfig
 from sins_align.estimators.in_motion.filter import InvariantEKF
 from sins_align.sim.trajectory import SEED003_SPECS, simulate_trajectory, uav_seed003
-from sins_align.studies.common import error_grid, median_or_none, settle_time
+from sins_align.studies.common import check_names, error_grid, median_or_none, settle_time
 
 __all__ = ["run", "summary_text", "write_plot", "SCENARIO", "PAPER", "CASES", "FILTERS",
            "simulate_runs", "run_filter"]
@@ -248,12 +248,8 @@ def run(runs: int = 4, seed: int = 0, duration: float | None = None,
     duration = float(SCENARIO["duration_s"] if duration is None else duration)
     if runs < 1 or not (2.0 <= duration <= 1000.0):
         raise ValueError("seed003: runs >= 1 and 2 s <= duration <= 1000 s")
-    for f in filters:
-        if f not in FILTERS:
-            raise ValueError(f"seed003: unknown filter {f!r}; choose from {FILTERS}")
-    for c in cases:
-        if c not in CASES:
-            raise ValueError(f"seed003: unknown case {c!r}; choose from {tuple(CASES)}")
+    check_names("seed003", "filter", filters, FILTERS)
+    check_names("seed003", "case", cases, CASES)
     rms_after = min(SCENARIO["rms_after_s"], 0.5 * duration)
     t_wall = time.perf_counter()
     data = simulate_runs([seed + i for i in range(runs)], duration)

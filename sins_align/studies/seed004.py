@@ -45,7 +45,7 @@ from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ, SensorSpecs, limi
 from sins_align.core.earth import gravity
 from sins_align.estimators.baselines import BASELINES, BaselineConfig, euler_dcm
 from sins_align.estimators.quasi_static import AlignConfig, AlignmentFilter
-from sins_align.studies.common import error_grid, median_or_none, settle_time
+from sins_align.studies.common import check_names, error_grid, median_or_none, settle_time
 
 __all__ = ["run", "summary_text", "write_plot", "SCENARIO", "PAPER", "CASES", "FILTERS"]
 
@@ -127,12 +127,8 @@ def run(runs: int = 4, seed: int = 0, duration: float | None = None, particles: 
     duration = float(SCENARIO["duration_s"] if duration is None else duration)
     if runs < 1 or duration < 2.0 or particles < 2 or chunk < 1:
         raise ValueError("seed004: runs >= 1, duration >= 2 s, particles >= 2, chunk >= 1")
-    for f in filters:
-        if f not in FILTERS:
-            raise ValueError(f"seed004: unknown filter {f!r}; choose from {FILTERS}")
-    for c in cases:
-        if c not in CASES:
-            raise ValueError(f"seed004: unknown case {c!r}; choose from {tuple(CASES)}")
+    check_names("seed004", "filter", filters, FILTERS)
+    check_names("seed004", "case", cases, CASES)
     rate = SCENARIO["rate_hz"]
     dt = 1.0 / rate
     m = int(round(rate))                            # one output (and filter step) per second

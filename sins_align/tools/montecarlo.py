@@ -678,7 +678,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="error against time, one panel per axis (needs matplotlib)")
     ou.add_argument("--quiet", action="store_true", help="no summary on stdout")
     p.add_argument("--study", help="run a comparison study instead (sins_align.studies: "
-                   "seed004); takes --runs, --seed, --duration, --json, --plot, --quiet")
+                   "seed003, seed004, feedback); takes --runs, --seed, --duration, --json, "
+                   "--plot, --quiet")
     return p
 
 

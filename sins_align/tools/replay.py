@@ -86,10 +86,9 @@ import numpy as np
 
 from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, TopicBlocks,
                                  atomic_outputs, check_bag_dir_name, check_new_output,
-                                 cli_main, deserialize,
-                                 finite_or_none, need_matplotlib, one_line, open_reader,
-                                 open_writer, pyplot, qos_profile, read_message_chunks,
-                                 read_messages)
+                                 cli_main, deserialize, finite_or_none, need_matplotlib,
+                                 one_line, open_reader, open_writer, pyplot, qos_profile,
+                                 read_message_chunks, read_messages)
 from sins_align.io.cdr import (IMU_TYPE, ImuBatch, decode_imu_array, decode_imu_batch,
                                reader_imu_layout)
 from sins_align.estimators.quasi_static import AlignConfig
