@@ -42,6 +42,7 @@ from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFee
                                                       lqr_gain)
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel)
+from sins_align.estimators.in_motion.jitter import JitterMonitor
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 
 __all__ = ["MotionAligner", "MOTION_REJECT_REASONS", "MOTION_STATES"]
@@ -118,6 +119,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._seq = 0
         self._applied: deque = deque()           # measurements applied, within the lag
         self._history: deque = deque()           # accepted samples (t, gyro, accel) arrays
+        self._jitter = JitterMonitor()
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
         self._next_nhc: float | None = None
         self._nis: deque = deque()               # (t, nis per dof, dof)
@@ -141,18 +143,30 @@ class MotionAligner(EventSource, AttitudeReadout):
 
     @property
     def covariance(self) -> np.ndarray:
-        """Attitude error covariance, ENU (C_true = exp(e x) C_est), rad^2. Before the start:
-        pi^2 on each axis (nothing known)."""
+        """Attitude error covariance, ENU (C_true = exp(e x) C_est), rad^2: the filter's
+        (while the bank of hypotheses runs, the Gaussian sum's about the published one) plus
+        the jitter the gyro's high-frequency content puts on the attitude
+        (:attr:`jitter_covariance`). Before the start: pi^2 on each axis (nothing known)."""
         if self.ekf is None:
             return np.eye(3) * math.pi ** 2
         covs = self.ekf.covariance_enu
+        C = self.dcm
+        jitter = C @ self._jitter.covariance @ C.T
         if self.ekf.K == 1:
-            return covs[0]
+            return covs[0] + jitter
         # the Gaussian sum's covariance about the published (best) hypothesis
         w = np.exp(self._logw)
         Cs = np.array([self.ekf.corrected(i)[0] for i in range(self.ekf.K)])
         d = attitude_error(Cs, Cs[self._best][None])                     # (K, 3), ENU
-        return np.einsum("k,kij->ij", w, covs + d[:, :, None] * d[:, None, :])
+        return np.einsum("k,kij->ij", w, covs + d[:, :, None] * d[:, None, :]) + jitter
+
+    @property
+    def jitter_covariance(self) -> np.ndarray:
+        """(3, 3) rad^2, body axes: the attitude jitter measured from the gyro's content at
+        5 Hz and above over the last two 1 s windows
+        (:class:`~sins_align.estimators.in_motion.jitter.JitterMonitor`), part of
+        :attr:`covariance`."""
+        return self._jitter.covariance.copy()
 
     @property
     def hypotheses(self) -> int:
@@ -286,6 +300,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         """Accepted samples, in order."""
         if self.t_first is None:
             self.t_first = float(t[0])
+        self._jitter.add(t, w)
         k = 0
         if self.ekf is None:
             k = self._initialize(t, w, f)
