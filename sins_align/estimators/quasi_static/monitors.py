@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sins_align.core.earth import OMEGA_IE
-from sins_align.core.rotation import dcm_from_quat, so3_exp
+from sins_align.core.rotation import dcm_from_quat, so3_exp_entries
 from sins_align.core.specs import DEG
 
 if TYPE_CHECKING:
@@ -33,24 +33,40 @@ class RecentMotion:
         self._a = np.zeros((self.SIZE, 7))       # dt, w, f
         self._i = 0                              # next row to write
         self._n = 0                              # rows filled
+        # for mean_force: the time before each row (sum of the dts before it) and the
+        # specific force component-major, so a window's mean is one contiguous sum
+        self._before = np.zeros(self.SIZE)
+        self._fT = np.zeros((3, self.SIZE))
+        self._total = 0.0                        # sum of every dt pushed
 
     def push(self, dt: float, w, f):
-        row = self._a[self._i]
+        i = self._i
+        row = self._a[i]
         row[0] = dt
         row[1:4] = w
         row[4:7] = f
-        self._i = (self._i + 1) % self.SIZE
+        self._before[i] = self._total
+        self._total += dt
+        self._fT[:, i] = f
+        self._i = (i + 1) % self.SIZE
         self._n = min(self._n + 1, self.SIZE)
 
     def extend(self, dts, w, f):
         m = len(w)
+        # the running time as push() sums it, one addition after the other
+        run = np.cumsum(np.concatenate(([self._total], np.broadcast_to(dts, (m,)))))
+        self._total = float(run[-1])
+        before = run[:-1]
         if m >= self.SIZE:
             dts, w, f = dts[-self.SIZE:], w[-self.SIZE:], f[-self.SIZE:]
+            before = before[-self.SIZE:]
             m = self.SIZE
         idx = (self._i + np.arange(m)) % self.SIZE
         self._a[idx, 0] = dts
         self._a[idx, 1:4] = w
         self._a[idx, 4:7] = f
+        self._before[idx] = before
+        self._fT[:, idx] = np.asarray(f, dtype=float).T
         self._i = (self._i + m) % self.SIZE
         self._n = min(self._n + m, self.SIZE)
 
@@ -79,11 +95,35 @@ class RecentMotion:
         return np.concatenate((a[self.SIZE - (m - i):], a[:i]))
 
     def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
-        """Mean specific force over the last ``seconds`` (None before any sample)."""
-        rows = self.last(seconds)
-        if not len(rows):
+        """Mean specific force over the last samples spanning at most ``seconds`` (at least
+        the newest one; None before any sample): the rows :meth:`last` gives, found from
+        the running time before each row instead of summing their intervals again (the
+        node reads this after every sample in the coarse pass; the same rows up to rounding
+        at the window's edge: a span equal to ``seconds`` within 1e-12 s)."""
+        n, i = self._n, self._i
+        if n == 0:
             return None
-        return rows[:, 4:7].mean(axis=0)
+        # rows oldest first: ring positions i - n .. i - 1, in at most two pieces
+        lo = self._total - seconds
+        if n <= i:
+            pieces = ((i - n, i),)
+        else:
+            pieces = ((self.SIZE - (n - i), self.SIZE), (0, i))
+        k = 0                                   # rows in the window
+        for a, b in reversed(pieces):           # newest piece first
+            j = a + int(np.searchsorted(self._before[a:b], lo, side="left"))
+            k += b - j
+            if j > a:
+                break
+        k = max(k, 1)
+        left, parts = k, []
+        for a, b in reversed(pieces):
+            m = min(left, b - a)
+            if m:
+                parts.append(self._fT[:, b - m:b].sum(axis=1))
+            left -= m
+        s = parts[0] if len(parts) == 1 else parts[0] + parts[1]
+        return s / k
 
     def bridge_errors(self, hole: float, nom: float, w_next, f_next, held: bool = True):
         """The bridges of a hole of ``hole`` seconds before the sample (w_next, f_next) and
@@ -320,14 +360,19 @@ class UnitsMonitor:
         if not 0.0 < dt <= self._gap(None):
             self._start()
             return None
-        dR = so3_exp(w * dt)
-        self.B = self.B @ dR
+        w0, w1, w2 = w.tolist()
+        dR = np.array(so3_exp_entries(w0 * dt, w1 * dt, w2 * dt)).reshape(3, 3)
+        self.B = B = self.B @ dR
         self.T += dt
         j = min(int(self.T), self.bins - 1)
-        a = self.acc[j]
-        a[0] += dt
-        a[1:4] += f * dt
-        a[4:7] += (self.B @ f) * dt
+        # scalar arithmetic on the 3-vectors (one sample: numpy calls cost more than the sums)
+        f0, f1, f2 = f.tolist()
+        (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B.tolist()
+        a = self.acc[j].tolist()
+        self.acc[j] = (a[0] + dt, a[1] + f0 * dt, a[2] + f1 * dt, a[3] + f2 * dt,
+                       a[4] + (b00 * f0 + b01 * f1 + b02 * f2) * dt,
+                       a[5] + (b10 * f0 + b11 * f1 + b12 * f2) * dt,
+                       a[6] + (b20 * f0 + b21 * f1 + b22 * f2) * dt)
         if self.T >= self.window:
             verdict = self._verdict(self.B, self.acc, self.T)
             if verdict is not None:
