@@ -212,6 +212,7 @@ class AlignmentFilter(FastPath, Backtrack):
 
     def _propagate(self, F, dt):
         if F.ndim == 2:                     # shared F: the step's matrices cached with dt
+            # (dropped with "D" when Qc changes: Backtrack)
             key = ("DT", dt)
             hit = self._cache.get(key)
             if hit is None:

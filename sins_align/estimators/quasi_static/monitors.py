@@ -94,36 +94,43 @@ class RecentMotion:
             return a[i - m:i]
         return np.concatenate((a[self.SIZE - (m - i):], a[:i]))
 
-    def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
-        """Mean specific force over the last samples spanning at most ``seconds`` (at least
-        the newest one; None before any sample): the rows :meth:`last` gives, found from
-        the running time before each row instead of summing their intervals again (the
-        node reads this after every sample in the coarse pass; the same rows up to rounding
-        at the window's edge: a span equal to ``seconds`` within 1e-12 s)."""
+    def _pieces(self):
+        """The filled ring positions oldest first, as at most two (start, stop) slices."""
         n, i = self._n, self._i
-        if n == 0:
-            return None
-        # rows oldest first: ring positions i - n .. i - 1, in at most two pieces
-        lo = self._total - seconds
         if n <= i:
-            pieces = ((i - n, i),)
-        else:
-            pieces = ((self.SIZE - (n - i), self.SIZE), (0, i))
-        k = 0                                   # rows in the window
-        for a, b in reversed(pieces):           # newest piece first
+            return ((i - n, i),)
+        return ((self.SIZE - (n - i), self.SIZE), (0, i))
+
+    def window_rows(self, seconds: float) -> int:
+        """How many of the newest samples span at most ``seconds`` (at least one; 0 before
+        any): :meth:`last`'s rows, found from the running time before each row instead of
+        summing their intervals again, so a span equal to ``seconds`` to rounding (uniform
+        stamps) may count one row more or less than there."""
+        if self._n == 0:
+            return 0
+        lo = self._total - seconds
+        k = 0
+        for a, b in reversed(self._pieces()):   # newest piece first
             j = a + int(np.searchsorted(self._before[a:b], lo, side="left"))
             k += b - j
             if j > a:
                 break
-        k = max(k, 1)
-        left, parts = k, []
-        for a, b in reversed(pieces):
+        return max(k, 1)
+
+    def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
+        """Mean specific force over the newest :meth:`window_rows` samples (None before any
+        sample). The coarse pass reads it after every sample: one contiguous sum per axis."""
+        k = self.window_rows(seconds)
+        if k == 0:
+            return None
+        left, total = k, None
+        for a, b in reversed(self._pieces()):
             m = min(left, b - a)
             if m:
-                parts.append(self._fT[:, b - m:b].sum(axis=1))
+                part = self._fT[:, b - m:b].sum(axis=1)
+                total = part if total is None else total + part
             left -= m
-        s = parts[0] if len(parts) == 1 else parts[0] + parts[1]
-        return s / k
+        return total / k
 
     def bridge_errors(self, hole: float, nom: float, w_next, f_next, held: bool = True):
         """The bridges of a hole of ``hole`` seconds before the sample (w_next, f_next) and
