@@ -79,3 +79,36 @@ def test_a_step_in_the_hole_is_within_sigma(where):
     w[k + 1 + where:] += 0.05
     means, _, (wb, _), err, _ = bridge_at(w, f, k, m)
     assert err <= math.sqrt(means[0]) * (1 + 1e-9), (err, math.sqrt(means[0]))
+
+
+@pytest.mark.parametrize("jitter", [False, True])
+def test_mean_force_equals_the_window_of_last(jitter):
+    """RecentMotion.mean_force (running time per row, component-major force: what the coarse
+    pass reads after every sample) equals the mean of the rows last() gives, fed sample by
+    sample and in blocks, across the ring's wrap; push and extend leave the same state."""
+    rng = np.random.default_rng(7)
+    a, b = RecentMotion(), RecentMotion()
+    worst, ties = 0.0, 0
+    for step in range(400):
+        m = int(rng.integers(1, 9000)) if step % 40 == 0 else 1
+        dts = (rng.uniform(0.0004, 0.0006, m) if jitter else np.full(m, 0.0005))
+        w, f = rng.normal(0.0, 1e-3, (m, 3)), rng.normal(9.8, 0.05, (m, 3))
+        for k in range(m):
+            a.push(float(dts[k]), w[k], f[k])
+        b.extend(dts, w, f)
+        for sec in (1.0, 0.0123, 100.0):
+            new = a.mean_force(sec)
+            assert np.array_equal(new, b.mean_force(sec))
+            rows = a.last(sec)
+            ref = rows[:, 4:7].mean(axis=0)
+            # a window whose span equals `seconds` to rounding may hold one row more or less
+            # (uniform stamps): the rows' count then differs by one, nothing else
+            n_new = a.window_rows(sec)
+            if n_new != len(rows):
+                assert abs(n_new - len(rows)) == 1 and not jitter
+                ties += 1
+                continue
+            worst = max(worst, float(np.abs(new - ref).max()))
+    assert np.array_equal(a._before, b._before) and a._total == b._total
+    assert worst < 1e-12
+    assert RecentMotion().mean_force(1.0) is None

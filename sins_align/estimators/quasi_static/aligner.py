@@ -171,16 +171,20 @@ class Aligner(EventSource, AttitudeReadout):
         heading std at least ``coarse_initial_std_deg``. When heading is
         unobservable the U row/column is cleared and its variance set to pi^2.
         """
-        P = self.filter.total_covariance()[0, :3, :3].copy()
+        P = self.filter.attitude_covariance(0)
         c = self.config
         if c.backtrack and not self.filter.backtracked:
+            # scalar arithmetic on 3-vectors: the node reads this after every sample
             level = c.fine_initial_std_deg[0] * DEG
+            u0, u1, u2 = self.dcm[2].tolist()
             fm = self._recent.mean_force(1.0)
             if fm is not None:
                 # the accelerometer's own view of the level error: the angle between the
                 # estimated up and the specific force of the last second (large in the
                 # first seconds from a start far off, e.g. upside down)
-                up = self.dcm[2] @ fm / max(float(np.linalg.norm(fm)), 1e-12)
+                f0, f1, f2 = fm.tolist()
+                up = (u0 * f0 + u1 * f1 + u2 * f2) / max(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2),
+                                                         1e-12)
                 level = max(level, math.acos(max(-1.0, min(1.0, up))))
             if self.nominal_dt is not None:
                 # ... and at least the largest angle to the 1 s means of the last 10 s: on a
@@ -192,13 +196,17 @@ class Aligner(EventSource, AttitudeReadout):
                     # the first two seconds: nothing yet tells a sway from the vertical
                     level = max(level, c.coarse_initial_std_deg[0] * DEG)
                 elif fb is not None:
-                    fb = fb[:, 0]
-                    cosang = (fb @ self.dcm[2]) / np.maximum(np.linalg.norm(fb, axis=1), 1e-12)
-                    level = max(level, math.acos(max(-1.0, min(1.0, float(cosang.min())))))
-            floor = np.array([level, level, c.coarse_initial_std_deg[1] * DEG])
-            sd = np.sqrt(np.diag(P))
-            scale = np.maximum(floor, sd) / sd
-            P = P * np.outer(scale, scale)
+                    cosmin = min((u0 * f0 + u1 * f1 + u2 * f2)
+                                 / max(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2), 1e-12)
+                                 for f0, f1, f2 in fb[:, 0].tolist())
+                    level = max(level, math.acos(max(-1.0, min(1.0, cosmin))))
+            floor = (level, level, c.coarse_initial_std_deg[1] * DEG)
+            p = P.tolist()
+            scale = []
+            for i in range(3):
+                sd = math.sqrt(p[i][i])
+                scale.append(max(floor[i], sd) / sd)
+            P = np.array([[p[i][j] * (scale[i] * scale[j]) for j in range(3)] for i in range(3)])
         if not self.heading_observable:
             P[2, :] = 0.0
             P[:, 2] = 0.0
@@ -333,7 +341,8 @@ class Aligner(EventSource, AttitudeReadout):
     def _static_reason(self, w: np.ndarray, f: np.ndarray) -> str | None:
         """The reason to reject a sample on its own values (no time line needed), or None."""
         c = self.config
-        fn = math.sqrt(float(f @ f))
+        f0, f1, f2 = f.tolist()
+        fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
         if fn < 0.25 * self.g:
             return "gravity_removed"
         if abs(fn - self.g) > c.specific_force_tolerance * self.g:
@@ -376,12 +385,16 @@ class Aligner(EventSource, AttitudeReadout):
 
     def _sample(self, t: float, w: np.ndarray, f: np.ndarray) -> int:
         c = self.config
-        if not (math.isfinite(t) and np.isfinite(w).all() and np.isfinite(f).all()):
+        w0, w1, w2 = w.tolist()
+        isfinite = math.isfinite
+        if not (isfinite(t) and isfinite(w0) and isfinite(w1) and isfinite(w2)
+                and all(map(isfinite, f.tolist()))):
             return self._reject("nonfinite", t)
+        w_norm = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
         if self.t_last is None:
             # the first accepted sample anchors time; it has no interval to integrate over
             why = self._static_reason(w, f)
-            if why is None and math.sqrt(float(w @ w)) > c.max_angular_rate:
+            if why is None and w_norm > c.max_angular_rate:
                 why = "rate_too_high"
             if why is not None:
                 return self._reject(why, t)
@@ -438,7 +451,7 @@ class Aligner(EventSource, AttitudeReadout):
             if self.units_suspect:
                 self.t_last = t
                 return self._reject("rates_look_like_deg_per_s", t)
-        if math.sqrt(float(w @ w)) > c.max_angular_rate:
+        if w_norm > c.max_angular_rate:
             return self._reject("rate_too_high", t)
         gap, hole, bridge = 0.0, (0.0, 0.0), None
         w_in, f_in = w, f

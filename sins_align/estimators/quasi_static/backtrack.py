@@ -271,7 +271,7 @@ class Backtrack:
             Qc[:, 3:, 3:] = np.eye(3) * q[:, None, None]
         self.Qc = Qc
         # everything derived from Qc: the discretisations and the schedule cache's key
-        self._cache = {k: v for k, v in self._cache.items() if k[0] not in ("D", "Dm")}
+        self._cache = {k: v for k, v in self._cache.items() if k[0] not in ("D", "DT", "Dm")}
         self._cfg_key = self._cfg_key[:3] + (Qc.tobytes(),) + self._cfg_key[4:]
 
 

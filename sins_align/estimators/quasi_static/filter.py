@@ -138,6 +138,13 @@ class AlignmentFilter(FastPath, Backtrack):
         """Noise covariance plus the bias-induced part ``S Sigma_b S^T``, (1|N, 6, 6)."""
         return self._with_bias(self.P, self.S)
 
+    def attitude_covariance(self, run: int = 0) -> np.ndarray:
+        """The attitude block (3, 3) of :meth:`total_covariance` for one run, a new array
+        (computed from the attitude rows only)."""
+        P, S = self.P, self.S
+        Sa = S[run if len(S) > 1 else 0, :3]
+        return P[run if len(P) > 1 else 0, :3, :3] + (Sa * self._bias_var) @ Sa.T
+
     def _with_bias(self, P, S):
         """P + S Sigma_b S^T (Sigma_b diagonal: the bias variances of the specs)."""
         return P + (S * self._bias_var) @ S.mT
@@ -204,10 +211,22 @@ class AlignmentFilter(FastPath, Backtrack):
         return system_matrix(model, self.w_ie, self.g_n, fn, self.v)
 
     def _propagate(self, F, dt):
-        Phi, Qd = self._disc(F, dt)
-        self.P = Phi @ self.P @ np.swapaxes(Phi, -1, -2) + Qd
+        if F.ndim == 2:                     # shared F: the step's matrices cached with dt
+            # (dropped with "D" when Qc changes: Backtrack)
+            key = ("DT", dt)
+            hit = self._cache.get(key)
+            if hit is None:
+                Phi, Qd = self._disc(F, dt)
+                hit = (Phi, np.swapaxes(Phi, -1, -2), Qd, self.Gamma * dt)
+                if len(self._cache) < 256:
+                    self._cache[key] = hit
+            Phi, PhiT, Qd, Gdt = hit
+        else:
+            Phi, Qd = self._disc(F, dt)
+            PhiT, Gdt = np.swapaxes(Phi, -1, -2), self.Gamma * dt
+        self.P = Phi @ self.P @ PhiT + Qd
         self._node = None
-        self.S = Phi @ self.S + self.Gamma * dt
+        self.S = Phi @ self.S + Gdt
 
     def _advance(self, dt, w, f, gap, dR=None, hole=(0.0, 0.0), bridge=None):
         """Mechanization (paper eq. 1), covariance propagation, and an update when due.

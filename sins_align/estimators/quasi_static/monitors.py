@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sins_align.core.earth import OMEGA_IE
-from sins_align.core.rotation import dcm_from_quat, so3_exp
+from sins_align.core.rotation import dcm_from_quat, so3_exp_entries
 from sins_align.core.specs import DEG
 
 if TYPE_CHECKING:
@@ -33,24 +33,40 @@ class RecentMotion:
         self._a = np.zeros((self.SIZE, 7))       # dt, w, f
         self._i = 0                              # next row to write
         self._n = 0                              # rows filled
+        # for mean_force: the time before each row (sum of the dts before it) and the
+        # specific force component-major, so a window's mean is one contiguous sum
+        self._before = np.zeros(self.SIZE)
+        self._fT = np.zeros((3, self.SIZE))
+        self._total = 0.0                        # sum of every dt pushed
 
     def push(self, dt: float, w, f):
-        row = self._a[self._i]
+        i = self._i
+        row = self._a[i]
         row[0] = dt
         row[1:4] = w
         row[4:7] = f
-        self._i = (self._i + 1) % self.SIZE
+        self._before[i] = self._total
+        self._total += dt
+        self._fT[:, i] = f
+        self._i = (i + 1) % self.SIZE
         self._n = min(self._n + 1, self.SIZE)
 
     def extend(self, dts, w, f):
         m = len(w)
+        # the running time as push() sums it, one addition after the other
+        run = np.cumsum(np.concatenate(([self._total], np.broadcast_to(dts, (m,)))))
+        self._total = float(run[-1])
+        before = run[:-1]
         if m >= self.SIZE:
             dts, w, f = dts[-self.SIZE:], w[-self.SIZE:], f[-self.SIZE:]
+            before = before[-self.SIZE:]
             m = self.SIZE
         idx = (self._i + np.arange(m)) % self.SIZE
         self._a[idx, 0] = dts
         self._a[idx, 1:4] = w
         self._a[idx, 4:7] = f
+        self._before[idx] = before
+        self._fT[:, idx] = np.asarray(f, dtype=float).T
         self._i = (self._i + m) % self.SIZE
         self._n = min(self._n + m, self.SIZE)
 
@@ -78,12 +94,43 @@ class RecentMotion:
             return a[i - m:i]
         return np.concatenate((a[self.SIZE - (m - i):], a[:i]))
 
+    def _pieces(self):
+        """The filled ring positions oldest first, as at most two (start, stop) slices."""
+        n, i = self._n, self._i
+        if n <= i:
+            return ((i - n, i),)
+        return ((self.SIZE - (n - i), self.SIZE), (0, i))
+
+    def window_rows(self, seconds: float) -> int:
+        """How many of the newest samples span at most ``seconds`` (at least one; 0 before
+        any): :meth:`last`'s rows, found from the running time before each row instead of
+        summing their intervals again, so a span equal to ``seconds`` to rounding (uniform
+        stamps) may count one row more or less than there."""
+        if self._n == 0:
+            return 0
+        lo = self._total - seconds
+        k = 0
+        for a, b in reversed(self._pieces()):   # newest piece first
+            j = a + int(np.searchsorted(self._before[a:b], lo, side="left"))
+            k += b - j
+            if j > a:
+                break
+        return max(k, 1)
+
     def mean_force(self, seconds: float = 1.0) -> np.ndarray | None:
-        """Mean specific force over the last ``seconds`` (None before any sample)."""
-        rows = self.last(seconds)
-        if not len(rows):
+        """Mean specific force over the newest :meth:`window_rows` samples (None before any
+        sample). The coarse pass reads it after every sample: one contiguous sum per axis."""
+        k = self.window_rows(seconds)
+        if k == 0:
             return None
-        return rows[:, 4:7].mean(axis=0)
+        left, total = k, None
+        for a, b in reversed(self._pieces()):
+            m = min(left, b - a)
+            if m:
+                part = self._fT[:, b - m:b].sum(axis=1)
+                total = part if total is None else total + part
+            left -= m
+        return total / k
 
     def bridge_errors(self, hole: float, nom: float, w_next, f_next, held: bool = True):
         """The bridges of a hole of ``hole`` seconds before the sample (w_next, f_next) and
@@ -320,14 +367,19 @@ class UnitsMonitor:
         if not 0.0 < dt <= self._gap(None):
             self._start()
             return None
-        dR = so3_exp(w * dt)
-        self.B = self.B @ dR
+        w0, w1, w2 = w.tolist()
+        dR = np.array(so3_exp_entries(w0 * dt, w1 * dt, w2 * dt)).reshape(3, 3)
+        self.B = B = self.B @ dR
         self.T += dt
         j = min(int(self.T), self.bins - 1)
-        a = self.acc[j]
-        a[0] += dt
-        a[1:4] += f * dt
-        a[4:7] += (self.B @ f) * dt
+        # scalar arithmetic on the 3-vectors (one sample: numpy calls cost more than the sums)
+        f0, f1, f2 = f.tolist()
+        (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B.tolist()
+        a = self.acc[j].tolist()
+        self.acc[j] = (a[0] + dt, a[1] + f0 * dt, a[2] + f1 * dt, a[3] + f2 * dt,
+                       a[4] + (b00 * f0 + b01 * f1 + b02 * f2) * dt,
+                       a[5] + (b10 * f0 + b11 * f1 + b12 * f2) * dt,
+                       a[6] + (b20 * f0 + b21 * f1 + b22 * f2) * dt)
         if self.T >= self.window:
             verdict = self._verdict(self.B, self.acc, self.T)
             if verdict is not None:
