@@ -606,8 +606,11 @@ class TopicBlocks:
             self.fallback_reason = "fast MCAP path disabled"
         else:
             try:
-                fast = McapTopicReader.for_reader(self.reader, self.connections)
-                it = iter(fast.blocks(MCAP_BLOCK_MAX))
+                if hasattr(self.reader, "fast_blocks"):      # a fastbag.FastBag
+                    it = iter(self.reader.fast_blocks(self.connections, MCAP_BLOCK_MAX))
+                else:
+                    fast = McapTopicReader.for_reader(self.reader, self.connections)
+                    it = iter(fast.blocks(MCAP_BLOCK_MAX))
             except Exception as e:  # noqa: BLE001 - McapUnusual, or rosbags internals moved
                 self.fallback_reason = one_line(e)
             else:
@@ -626,7 +629,10 @@ class TopicBlocks:
                         yield block
         items: list[tuple[object, int, bytes]] = []
         skip = delivered
-        for item in read_messages(self.reader, self.connections, self.path):
+        reader, connections = self.reader, self.connections
+        if hasattr(reader, "fast_blocks"):          # a FastBag: rosbags' reader, opened now
+            reader, connections = reader.rosbags(connections)
+        for item in read_messages(reader, connections, self.path):
             if skip:
                 skip -= 1
                 if skip == 0 and item[1] != last_ns:

@@ -89,6 +89,7 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  cli_main, deserialize, finite_or_none, need_matplotlib,
                                  one_line, open_reader, open_writer, pyplot, qos_profile,
                                  read_message_chunks, read_messages)
+from sins_align.io.fastbag import FastBag, open_fast
 from sins_align.io.cdr import (IMU_TYPE, ImuBatch, decode_imu_array, decode_imu_batch,
                                reader_imu_layout)
 from sins_align.estimators.quasi_static import AlignConfig
@@ -399,7 +400,7 @@ class ReplaySession:
         self._last_velocity_ns: int | None = None
         #: the estimator estimates its biases (the in-motion one): reported in the summary
         self._has_biases = hasattr(self.al, "bias_gyro")
-        self.msgs = Messages()
+        self.msgs = Messages() if writer is not None else None   # rosbags: only to write
         self.writer = writer
         self.with_truth = with_truth
         self.truth = TruthMatcher() if with_truth else None
@@ -948,15 +949,19 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
     Returns the summary dict and the session (for the plot). Raises CliError on bad input.
     """
     t_wall = time.perf_counter()
-    reader = open_reader(bag)
+    motion = reference is not None and reference.enabled
+    # the block path's usual bags open without rosbags (its import is most of a cold start)
+    reader = (open_fast(bag) if fast_mcap and not per_sample and output is None
+              and not truth_topic and not motion else None)
+    if reader is None:
+        reader = open_reader(bag)
     writer = None
     csv_file = None
     try:
         topic, conns = select_imu_connections(reader, topic, bag)
         truth_conns = select_truth_connections(reader, truth_topic, bag) if truth_topic else []
-        motion = reference is not None and reference.enabled
         refs = read_references(reader, reference, bag) if motion else []
-        layout = reader_imu_layout(reader)
+        layout = "ros2" if isinstance(reader, FastBag) else reader_imu_layout(reader)
         block = (not per_sample and output is None and not truth_conns
                  and layout is not None)
         if output is not None:
@@ -981,8 +986,10 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
                 session.on_imu_block(samples)
                 n += len(samples)
                 bar.update(n)
-            session.reading = ("mcap-numpy" if blocks.fallback_reason is None else
-                               "rosbags" if blocks.fast_messages == 0 else "mcap-numpy+rosbags",
+            fast_name = "sqlite3-bulk" if getattr(reader, "storage", "") == "sqlite3" \
+                else "mcap-numpy"
+            session.reading = (fast_name if blocks.fallback_reason is None else
+                               "rosbags" if blocks.fast_messages == 0 else f"{fast_name}+rosbags",
                                blocks.fallback_reason)
         else:
             truth_ids = {id(c) for c in truth_conns}
