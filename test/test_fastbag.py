@@ -250,3 +250,63 @@ def test_definition_check():
             check_definition(IMU, "ros2msg", bad)
     with pytest.raises(Unusual, match="encoding"):
         check_definition(IMU, "ros2idl", "module sensor_msgs {};")
+
+
+# ------------------------------------------------------------------------------ YAML
+ROSBAG2_STYLE = """rosbag2_bagfile_information:
+  version: 9
+  storage_identifier: mcap
+  duration:
+    nanoseconds: 599990000000
+  starting_time:
+    nanoseconds_since_epoch: 1700000000123456789
+  message_count: 120000
+  topics_with_message_count:
+    - topic_metadata:
+        name: /imu/data_raw
+        type: sensor_msgs/msg/Imu
+        serialization_format: cdr
+        offered_qos_profiles:
+          - history: keep_last
+            depth: 1000
+            reliability: reliable
+            durability: volatile
+            deadline:
+              sec: 9223372036
+              nsec: 854775807
+            avoid_ros_namespace_conventions: false
+        type_description_hash: RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55f
+      message_count: 60000
+  compression_format: ""
+  compression_mode: ''
+  relative_file_paths:
+    - rosbag2_2024_01_01-00_00_00_0.mcap
+  files:
+    - path: rosbag2_2024_01_01-00_00_00_0.mcap
+      starting_time:
+        nanoseconds_since_epoch: 1700000000123456789
+  custom_data:
+    note: a long value folded
+      over two lines
+  ros_distro: jazzy
+"""
+
+
+def test_block_yaml_reads_rosbag2_metadata_as_pyyaml_or_refuses():
+    import yaml
+
+    from sins_align.io.fastbag import SKIPPED_KEYS, block_yaml
+
+    texts = [ROSBAG2_STYLE, "- a: 1\n  b:\n    c: x\n- d: []\n  e: {}\n  f: ~\n",
+             "k:\n- 1\n- -2\n- 'it''s'\nm: true\n"]
+    for t in texts:
+        want = yaml.safe_load(t)
+        if isinstance(want, dict) and "rosbag2_bagfile_information" in want:
+            for k in SKIPPED_KEYS:
+                want["rosbag2_bagfile_information"][k] = None
+        assert block_yaml(t) == want
+    for odd in ("a: 1.5\n", "a: 010\n", "a: yes\n", "a: 0x1f\n", "a: [1, 2]\n", "a: |\n  x\n",
+                "a: \"x\\ny\"\n", "a: &x 1\n", "---\na: 1\n", "a: b: c\n", "a: 2024-01-01\n",
+                "a: x # c\n", "a: 1\na: 2\n", "  a: 1\n", "a: b\n  c\n"):
+        with pytest.raises(ValueError):
+            block_yaml(odd)

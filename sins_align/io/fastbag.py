@@ -34,6 +34,7 @@ Conditions (anything else: None, rosbags opens the bag):
 from __future__ import annotations
 
 import os
+import re
 import struct
 from pathlib import Path
 from typing import Iterator
@@ -150,8 +151,111 @@ class Connection:
 
 
 def _yaml_load(text: str):
-    import yaml
-    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    """YAML of a bag (metadata.yaml, QoS profiles): the plain block subset that rosbag2 and
+    rosbags write read directly (:func:`block_yaml`; importing PyYAML costs 20 ms of a cold
+    start), anything else by PyYAML."""
+    try:
+        return block_yaml(text)
+    except ValueError:
+        import yaml
+        return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+
+
+#: Keys of metadata.yaml whose values are skipped unread (custom_data: folded long strings).
+SKIPPED_KEYS = frozenset({"custom_data", "files", "duration", "starting_time"})
+_INT = re.compile(r"[-+]?[0-9]+\Z")
+_PLAIN = re.compile(r"[A-Za-z0-9_/.][A-Za-z0-9_/.:+ -]*\Z")
+
+
+def _scalar(v: str):
+    if v in ("[]", "{}"):
+        return [] if v == "[]" else {}
+    if v in ("", "~", "null"):
+        return None
+    if v in ("true", "false"):
+        return v == "true"
+    if len(v) >= 2 and v[0] == v[-1] == "'" and "'" not in v[1:-1].replace("''", ""):
+        return v[1:-1].replace("''", "'")
+    if len(v) >= 2 and v[0] == v[-1] == '"' and "\\" not in v and '"' not in v[1:-1]:
+        return v[1:-1]
+    if _INT.match(v) and not (len(v.lstrip("+-")) > 1 and v.lstrip("+-")[0] == "0"):
+        return int(v)
+    if v[0].isdigit():              # floats, octal, hex, 1_000, dates: PyYAML types them
+        raise ValueError(f"scalar {v!r}")
+    if not _PLAIN.match(v) or v.endswith((" ", ":")) or ": " in v or " #" in v \
+            or v.lower() in ("yes", "no", "on", "off", "true", "false", "null", ".nan",
+                             ".inf", "-.inf") or v[0] in "-+." and len(v) > 1:
+        raise ValueError(f"scalar {v!r}")
+    return v
+
+
+def block_yaml(text: str):
+    """The subset of YAML in block style with one-line scalars (plain, quoted without
+    escapes, empty flow collections, ints, booleans, null) as Python objects, the values of
+    :data:`SKIPPED_KEYS` skipped unread; ValueError for anything outside it."""
+    lines = [(len(ln) - len(ln.lstrip(" ")), ln.strip()) for ln in text.splitlines()
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    if any("\t" in c for _, c in lines):
+        raise ValueError("tab")
+    pos = 0
+
+    def node(indent: int):
+        nonlocal pos
+        ind, c = lines[pos]
+        if c.startswith("- ") or c == "-":
+            out = []
+            while pos < len(lines) and lines[pos][0] == ind and (
+                    lines[pos][1].startswith("- ") or lines[pos][1] == "-"):
+                rest = lines[pos][1][1:].lstrip(" ")
+                if not rest:
+                    pos += 1
+                    out.append(node(ind + 1))
+                elif ":" in rest and (rest.endswith(":") or ": " in rest):
+                    # an inline mapping: its first key sits after the dash
+                    lines[pos] = (ind + len(lines[pos][1]) - len(rest), rest)
+                    out.append(node(ind + 1))
+                else:
+                    out.append(_scalar(rest))
+                    pos += 1
+            return out
+        out = {}
+        while pos < len(lines) and lines[pos][0] == ind and not lines[pos][1].startswith("-"):
+            c = lines[pos][1]
+            if c.endswith(":"):
+                key, val = c[:-1], None
+            elif ": " in c:
+                key, val = c.split(": ", 1)
+                val = val.strip()
+            else:
+                raise ValueError(f"line {c!r}")
+            key = _scalar(key)
+            if not isinstance(key, str) or key in out:
+                raise ValueError(f"key {key!r}")
+            pos += 1
+            if key in SKIPPED_KEYS:
+                while pos < len(lines) and (lines[pos][0] > ind or (
+                        lines[pos][0] == ind and lines[pos][1].startswith("-"))):
+                    pos += 1
+                out[key] = None
+            elif val is None:
+                nxt = lines[pos] if pos < len(lines) else None
+                if nxt is not None and (nxt[0] > ind or (nxt[0] == ind
+                                                         and nxt[1].startswith("- "))):
+                    out[key] = node(ind + 1)
+                else:
+                    out[key] = None
+            else:
+                out[key] = _scalar(val)
+        return out
+
+    if not lines:
+        return None
+    if lines[0][0] != 0:
+        raise ValueError("indented document")
+    result = node(0)
+    if pos != len(lines):
+        raise ValueError(f"line {lines[pos][1]!r}")
+    return result
 
 
 def _qos(value):
