@@ -310,3 +310,38 @@ def test_block_yaml_reads_rosbag2_metadata_as_pyyaml_or_refuses():
                 "a: x # c\n", "a: 1\na: 2\n", "  a: 1\n", "a: b\n  c\n"):
         with pytest.raises(ValueError):
             block_yaml(odd)
+
+
+# ------------------------------------------------------------------------------ bad input
+def test_bad_data_in_fast_opened_bags_is_one_line_error(tmp_path, capsys):
+    """Bytes zeroed inside an mcap directory bag's second chunk and a truncated Imu message
+    in a sqlite3 bag: the fast reader hands over to rosbags (reading, or deserialising the
+    message it refuses); the same one-line error as when rosbags opens and reads the bag,
+    nothing written."""
+    from sins_align.io.bagio import CliError, McapTopicReader
+
+    bag = write_bag(tmp_path / "m", interleaved(0, 3000), "mcap", "zstd")
+    f = bag / "m.mcap"
+    chunks = McapTopicReader._plan(f, frozenset({1}))
+    assert len(chunks) >= 2
+    data = bytearray(f.read_bytes())
+    at = chunks[1].offset + 80                      # inside the second chunk
+    data[at:at + 64] = bytes(64)
+    f.write_bytes(bytes(data))
+    items = interleaved(0, 300)
+    items[101] = ("/imu", items[101][1], items[101][2][:-9])        # truncated
+    sq = write_bag(tmp_path / "s", items)
+    cfg = AlignConfig(latitude_deg=34.0)
+    for b in (bag, sq):
+        assert open_fast(b) is not None
+        errors = []
+        for fast in (True, False):
+            with pytest.raises(CliError) as e:
+                replay.replay(b, cfg, progress=False, fast_mcap=fast)
+            errors.append(str(e.value))
+        assert errors[0] == errors[1] and str(b) in errors[0]
+        js = tmp_path / f"{b.name}.json"
+        rc = replay.main([str(b), "--latitude", "34", "--summary-json", str(js)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and err == [f"replay: error: {errors[0]}"]
+        assert not js.exists()
