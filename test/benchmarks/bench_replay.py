@@ -8,29 +8,32 @@ It simulates a static navigation-grade 100 Hz bag (``sins_align.tools.simulate``
 Imu topic interleaved with the truth topic) into a temporary directory, then times
 ``sins_align.tools.replay`` in this process (the CLI's ``main``, so argument handling, bag
 reading, decoding, the estimator and the JSON are all in), best of ``--repeat`` runs, and
-prints each figure beside the target of 500,000 Imu messages/s:
+prints each figure beside issue 14's targets (800,000 Imu messages/s end to end, 200,000 with
+``--csv`` or ``--output``):
 
-- end to end, summary only (the block path: MCAP parsed with numpy, bulk decoding, the
-  estimator fed blocks of thousands of samples), cold (as a fresh process: the gain
-  schedule cache cleared) and warm, cold on the same data in an uncompressed bag (what
-  ``ros2 bag record`` writes by default; the result must be identical), and the same
-  forced onto the per-sample path (before); with ``--csv`` (block path cut at the 10 Hz rows) and
-  ``--output`` (the node's per-sample path) for reference;
+- end to end, summary only (the block path: the bag opened without rosbags by
+  ``sins_align.io.fastbag``, MCAP parsed with numpy, bulk decoding, the estimator fed
+  blocks of thousands of samples), cold (the gain schedule cache cleared; imports done) and
+  warm, cold on the same data in an uncompressed bag (what ``ros2 bag record`` writes by
+  default; the result must be identical), and the same forced onto the per-sample path
+  (before); with ``--csv`` (block path cut at the 10 Hz rows) and ``--output`` (the node's
+  per-sample path);
+- in a fresh process (``python -m sins_align.tools.replay BAG --summary-json``, as users run
+  it): the summary's ``messages_per_s`` (bag opened -> summary) and the process's wall time,
+  for the mcap + zstd bag, the uncompressed one, a sqlite3 copy (read in bulk) and an mcap
+  written by rosbags' own Writer (Imu only), with the reading path each takes; ``--csv`` and
+  ``--output`` on the uncompressed bag;
 - decode only, bag on disk -> (sec, nanosec, gyro, accel) arrays of the Imu topic: rosbags'
   reader + its deserializer (before), rosbags' reader + the bulk decoder, and the numpy MCAP
   reader + bulk decoder (after); rosbags' reader alone (raw bytes) for scale;
 - the pieces of the end-to-end time: opening the bag with rosbags (metadata, types), and the
   estimator alone on the decoded arrays, fed in blocks and one sample at a time.
 
-Measured here (x86_64, 2 cores, CPython 3.11, numpy 2.4, best of 5; the machine's speed
-drifts by up to 1.7x), 600 s bag (the default), in a quiet moment: summary only ~22,000
-msg/s per-sample (before) -> ~565,000 block path cold (a fresh process: the gain schedule
-is built) and ~628,000 warm (schedule cached: the next bag of the same configuration),
-~633,000 cold from the uncompressed copy (no zstd to undo); decode only ~53,000 (rosbags)
--> ~1,740,000 msg/s (numpy MCAP, 7 ms of it opening the bag with rosbags); the estimator
-alone in blocks ~990,000 samples/s cold; --csv at 100 Hz ~24,000 msg/s (blocks of 10
-samples between rows: the estimator's per-sample path), --output ~10,000 msg/s
-(per-sample by design). In slow moments the block path drops to 363,000-491,000 cold.
+Measured (x86_64, 2 cores, CPython 3.11, numpy 2.4; the machine's speed drifts by up to
+1.7x, more under other jobs), 600 s bag: see README "Speed". In a fresh process the replay
+window is now mostly the estimator's cold ``Aligner.update`` (80-90 % of it under load);
+--csv and --output run at the estimator's one-sample path (cut at every 10 Hz row / an
+output after every sample).
 """
 from __future__ import annotations
 
