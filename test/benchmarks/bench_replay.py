@@ -57,6 +57,7 @@ from sins_align.tools import replay
 from sins_align.tools import simulate
 from sins_align.io.bagio import TopicBlocks, deserialize, open_reader, read_message_chunks
 from sins_align.io.cdr import decode_imu_array, decode_imu_batch, reader_imu_layout
+from sins_align.io.fastbag import open_fast
 from sins_align.estimators.quasi_static.aligner import AlignConfig, Aligner
 from sins_align.ros.outputs import StampClock
 
@@ -251,6 +252,7 @@ def main() -> int:
             reader.close()
 
         t_open = best_of(R, open_only)
+        t_open_fast = best_of(R, lambda: open_fast(bag).close())
 
         sec, nsec, gyro, accel = decoded["numpy-mcap"]
         clock = StampClock()
@@ -302,7 +304,8 @@ def main() -> int:
     print(f"    rosbags reader + bulk decode:       {rate(t_dec['bulk'])}")
     print(f"    numpy MCAP reader + bulk decode:    {rate(t_dec['numpy-mcap'])}")
     print(f"    (rosbags reader alone, raw bytes:   {rate(t_raw)})")
-    print(f"  pieces: opening the bag (rosbags: metadata, types) {1e3 * t_open:.1f} ms; "
+    print(f"  pieces: opening the bag (rosbags: metadata, types) {1e3 * t_open:.1f} ms, "
+          f"without rosbags (fastbag) {1e3 * t_open_fast:.1f} ms; "
           f"estimator alone {n / t_est:,.0f} samples/s in blocks of {replay.READ_CHUNK} "
           f"({t_est:.3f} s), {n / t_est1:,.0f}/s one by one")
     fa, fb = summary["final"], s_ps["final"]
