@@ -345,3 +345,41 @@ def test_bad_data_in_fast_opened_bags_is_one_line_error(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and err == [f"replay: error: {errors[0]}"]
         assert not js.exists()
+
+
+# ------------------------------------------------------------------------------ bare files
+def test_bare_mcap_files_open_as_rosbags_opens_them(tmp_path):
+    """A lone .mcap (rosbags' McapReader: the channels are the connections, counted by the
+    statistics record, or by the chunk indexes when there is none): the same connections,
+    topics and messages; a replay of it takes the fast path with rosbags' summary."""
+    from test_mcap_fast import interleaved as mcap_messages, write_mcap
+
+    from sins_align.tools import simulate
+
+    sim = tmp_path / "sim"
+    assert simulate.main(["--latitude", "34", "--duration", "40", "--rate", "100",
+                          "--compression", "zstd", str(sim)]) == 0
+    no_stats = write_mcap(tmp_path / "n.mcap", [("zstd", mcap_messages(0, 300), b""),
+                                                ("lz4", mcap_messages(300, 450), b"")])
+    for f, topic in ((next(sim.glob("*.mcap")), "/imu/data_raw"), (no_stats, "/imu")):
+        fast, r = open_fast(f), open_reader(f)
+        try:
+            assert fast is not None and fast.bare
+            assert [(c.id, c.topic, c.msgtype, c.msgcount) for c in fast.connections] == \
+                [(c.id, c.topic, c.msgtype, c.msgcount) for c in r.connections]
+            assert {k: (v.msgtype, v.msgcount) for k, v in fast.topics.items()} == \
+                {k: (v.msgtype, v.msgcount) for k, v in r.topics.items()}
+        finally:
+            fast.close()
+            r.close()
+        tb, got = fast_read(f, topic)
+        assert tb.fallback_reason is None and got == rosbags_messages(f, topic)
+    cfg = AlignConfig(latitude_deg=34.0)
+    f = next(sim.glob("*.mcap"))
+    s1, sess1 = replay.replay(f, cfg, progress=False)
+    s2, sess2 = replay.replay(f, cfg, progress=False, fast_mcap=False)
+    assert sess1.reading == ("mcap-numpy", None) and sess2.reading[0] == "rosbags"
+    for s in (s1, s2):
+        s.pop("wall_time_s")
+        s.pop("messages_per_s")
+    assert json.dumps(s1, sort_keys=True) == json.dumps(s2, sort_keys=True)

@@ -667,7 +667,9 @@ class McapUnusual(Exception):
     """The MCAP file is outside what :class:`McapTopicReader` reads (rosbags reads it)."""
 
 
-class _ChunkIndex:
+class ChunkIndex:
+    """An MCAP Chunk Index record (summary section), as rosbags reads it."""
+
     __slots__ = ("start", "end", "offset", "length", "index_offsets", "index_length",
                  "compression", "compressed_size", "uncompressed_size")
 
@@ -770,7 +772,7 @@ class McapTopicReader:
                                            block.sizes[sl])
 
     @staticmethod
-    def _plan(path: Path, ids: frozenset[int]) -> list[_ChunkIndex]:
+    def _plan(path: Path, ids: frozenset[int]) -> list[ChunkIndex]:
         """The chunks holding the channels, in reading order (checked not to overlap)."""
         with open(path, "rb") as f:
             size = f.seek(0, 2)
@@ -787,7 +789,7 @@ class McapTopicReader:
                 raise McapUnusual("no summary section")
             f.seek(summary_start)
             data = f.read(size - 37 - summary_start)
-        chunks: list[_ChunkIndex] = []
+        chunks: list[ChunkIndex] = []
         pos = 0
         while pos < len(data):
             if pos + 9 > len(data):
@@ -799,7 +801,7 @@ class McapTopicReader:
             if pos + 9 + n > len(data):
                 raise McapUnusual("truncated summary record")
             if op == _OP_CHUNK_INDEX:
-                chunks.append(_ChunkIndex(data[pos + 9:pos + 9 + n]))
+                chunks.append(ChunkIndex(data[pos + 9:pos + 9 + n]))
             pos += 9 + n
         if not chunks:
             raise McapUnusual("no chunk index")
@@ -818,7 +820,7 @@ class McapTopicReader:
         return used
 
     @staticmethod
-    def _read_chunk(f, ci: _ChunkIndex, ids: frozenset[int]) -> MessageBlock:
+    def _read_chunk(f, ci: ChunkIndex, ids: frozenset[int]) -> MessageBlock:
         f.seek(ci.offset)
         data = f.read(ci.length + ci.index_length)
         if len(data) != ci.length + ci.index_length or data[0] != _OP_CHUNK:

@@ -3,13 +3,14 @@
 Importing rosbags and building its ROS 2 typestore costs 150-300 ms in a fresh process,
 more than reading and decoding a 600 s, 100 Hz bag. :func:`open_fast` opens the bags whose
 Imu topic the bulk path reads anyway (a rosbag2 directory of one mcap or one sqlite3 file,
-no rosbag2 compression, the standard ``sensor_msgs/msg/Imu`` definition or none) from
-``metadata.yaml`` and the storage file's own index, and returns None for anything else,
-which rosbags then opens as before. The :class:`FastBag` it returns offers what replay's
-block path takes from rosbags' ``AnyReader``: ``topics`` and ``connections`` (with the
-message counts of ``metadata.yaml``, as rosbags' DirectoryReader reports them), the
-messages of one topic in blocks (:meth:`FastBag.fast_blocks`: the numpy MCAP reader, or
-one bulk query of the sqlite3 ``messages`` table), and, opened only when needed, rosbags'
+or a lone .mcap file, no rosbag2 compression, the standard ``sensor_msgs/msg/Imu``
+definition or none) from ``metadata.yaml`` and the storage file's own index, and returns
+None for anything else, which rosbags then opens as before. The :class:`FastBag` it
+returns offers what replay's block path takes from rosbags' ``AnyReader``: ``topics`` and
+``connections`` (with the message counts of ``metadata.yaml``, as rosbags'
+DirectoryReader reports them), the messages of one topic in blocks
+(:meth:`FastBag.fast_blocks`: the numpy MCAP reader, or windows of the sqlite3
+``messages`` table aggregated by SQLite), and, opened only when needed, rosbags'
 reader for everything else (:meth:`FastBag.rosbags`: a block reader that meets something
 unusual falls back to it, as :class:`~sins_align.io.bagio.TopicBlocks` does; a message the
 bulk decoder refuses is deserialised by it, :meth:`FastBag.deserialize`).
@@ -17,7 +18,9 @@ bulk decoder refuses is deserialised by it, :meth:`FastBag.deserialize`).
 Conditions (anything else: None, rosbags opens the bag):
 
 - a directory with ``metadata.yaml`` (version <= 9) naming one file, storage ``mcap`` or
-  ``sqlite3``, no ``compression_mode``, every topic ``cdr``;
+  ``sqlite3``, no ``compression_mode``, every topic ``cdr``; or a lone ``.mcap`` file
+  (its ``cdr`` channels are the connections, as rosbags' McapReader makes them, counted by
+  the statistics record or else the chunk indexes);
 - mcap: magic, ``ros2`` profile header, footer and a summary section with the schemas and
   channels (the record layout rosbags' McapReader reads); sqlite3: the ``topics`` and
   ``messages`` tables;
@@ -278,6 +281,11 @@ class FastBag:
         self._db = None
         #: per storage: {topic: [(storage id, type, serialization, qos, digest)]}
         self._channels: dict[str, list] = {}
+        #: a bare .mcap file (no metadata.yaml): its channels are the connections
+        self.bare = False
+        self._channel_list: list[tuple[int, str, str, str]] = []   # (id, topic, type, enc)
+        self._counts: dict[int, int] | None = None    # messages per channel (statistics)
+        self._chunk_counts: dict[int, int] = {}       # the same from the chunk indexes
         self.definitions: list[tuple[str, str, str]] = []    # (type, encoding, text)
 
     @property
@@ -294,7 +302,7 @@ class FastBag:
 
     # -- storage -------------------------------------------------------------------------
     def _open_mcap(self):
-        from sins_align.io.bagio import MCAP_MAGIC
+        from sins_align.io.bagio import MCAP_MAGIC, ChunkIndex
         with open(self.file, "rb") as f:
             size = f.seek(0, 2)
             f.seek(0)
@@ -317,7 +325,7 @@ class FastBag:
         schemas: dict[int, tuple[str, str, str]] = {}
         pos = 0
         try:
-            while True:
+            while pos < len(data):
                 op = data[pos]
                 if op in (0x02, 0x0E):
                     break
@@ -339,6 +347,17 @@ class FastBag:
                     name = schemas[sid][0] if sid in schemas else "__schemaless__"
                     self._channels.setdefault(topic, []).append(
                         (cid, name, enc, _qos(meta.get("offered_qos_profiles", "")), ""))
+                    self._channel_list.append((cid, topic, name, enc))
+                elif op == 0x0B and self.bare:
+                    # message, schema, channel, attachment, metadata and chunk counts,
+                    # start and end time (42 bytes), then channel_message_counts
+                    (k,) = struct.unpack_from("<I", body, 42)
+                    if k % 10 or 46 + k > len(body):
+                        raise Unusual("malformed statistics")
+                    self._counts = dict(struct.iter_unpack("<HQ", body[46:46 + k]))
+                elif op == 0x08 and self.bare:
+                    for cid, c in ChunkIndex(body).counts().items():
+                        self._chunk_counts[cid] = self._chunk_counts.get(cid, 0) + c
                 pos += 9 + n
         except (IndexError, struct.error, UnicodeDecodeError, KeyError) as e:
             raise Unusual(f"malformed summary: {e}") from None
@@ -377,6 +396,8 @@ class FastBag:
 
     def channel(self, conn: Connection) -> int:
         """The storage's id of ``conn``'s topic (one channel or topic row matching it)."""
+        if self.bare:
+            return conn.id
         match = [c for c in self._channels.get(conn.topic, ())
                  if c[1] == conn.msgtype and c[2] == conn.serialization_format
                  and c[3] == conn.qos and (not c[4] or not conn.digest or c[4] == conn.digest)]
@@ -487,6 +508,8 @@ def open_fast(path: str | os.PathLike) -> FastBag | None:
     """A :class:`FastBag` of ``path``, or None when rosbags must open it (see the module
     docstring; also None for any bag rosbags would refuse: it then reports why)."""
     p = Path(path)
+    if p.suffix == ".mcap" and p.is_file():
+        return _open_bare_mcap(p)
     try:
         meta_path = p / "metadata.yaml"
         if not p.is_dir() or p.suffix.lower() == ".bag" or not meta_path.is_file():
@@ -517,6 +540,27 @@ def open_fast(path: str | os.PathLike) -> FastBag | None:
             bag._open_mcap()
         else:
             bag._open_sqlite()
+        for msgtype, enc, text in bag.definitions:
+            check_definition(msgtype, enc, text)
+    except Exception:  # noqa: BLE001 - Unusual, or anything odd
+        bag.close()
+        return None
+    return bag
+
+
+def _open_bare_mcap(p: Path) -> FastBag | None:
+    """A lone .mcap file, as rosbags' McapReader opens it: its channels are the connections
+    (ids, topics, schema names), counted by the statistics record or else the chunk
+    indexes."""
+    bag = FastBag(p, "mcap", p, [])
+    bag.bare = True
+    try:
+        bag._open_mcap()
+        counts = bag._counts if bag._counts is not None else bag._chunk_counts
+        if any(enc != "cdr" for _, _, _, enc in bag._channel_list):
+            raise Unusual("a channel that is not cdr")
+        bag.connections = [Connection(cid, topic, name, int(counts.get(cid, 0)), "cdr", [], "")
+                           for cid, topic, name, _ in bag._channel_list]
         for msgtype, enc, text in bag.definitions:
             check_definition(msgtype, enc, text)
     except Exception:  # noqa: BLE001 - Unusual, or anything odd
