@@ -56,11 +56,15 @@ results (test_bag_tools: attitude to 1e-9 rad, identical counts, times and flag 
 
 - with ``--output`` or ``--truth-topic``, every message goes through
   :meth:`ReplaySession.on_imu` in bag order, one by one, as the node takes it (the Imu
-  ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of :data:`READ_CHUNK`);
-- otherwise (summary, ``--csv``, ``--plot``) the Imu topic is read in blocks
-  (:class:`sins_align.io.bagio.TopicBlocks`: MCAP chunks parsed and sliced with numpy, rosbags
-  for other storages), decoded in bulk and fed to the estimator :data:`READ_CHUNK` samples
-  per :meth:`~sins_align.estimators.quasi_static.Aligner.update` (its fast path), cut only where the
+  ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of :data:`READ_CHUNK`;
+  ``/imu/data`` is the input's bytes with the orientation written in, as the node
+  republishes);
+- otherwise (summary, ``--csv``, ``--plot``) the usual rosbag2 bags are opened without
+  rosbags (:mod:`sins_align.io.fastbag`) and the Imu topic is read in blocks
+  (:class:`sins_align.io.bagio.TopicBlocks`: MCAP chunks parsed and sliced with numpy, sqlite3
+  windows aggregated by SQLite, rosbags for anything else), decoded in bulk and fed to the
+  estimator :data:`READ_CHUNK` samples per
+  :meth:`~sins_align.estimators.quasi_static.Aligner.update` (its fast path), cut only where the
   per-sample behaviour needs a sample alone or a boundary: a possible backward jump (the node's
   restart), a frame_id change and, for the CSV and the plot, the 10 Hz rows. With CSV/plot at 100 Hz
   those blocks are too short for the fast path (an order of magnitude slower than summary only;
