@@ -198,12 +198,12 @@ def test_replay_gives_identical_results_from_sqlite3_and_ros1_bags(work, sim_bag
         assert s["final"]["orientation_xyzw"] == ref["final"]["orientation_xyzw"], bag
         assert s["final"]["error_enu_deg"] == ref["final"]["error_enu_deg"], bag
         assert s["samples"] == ref["samples"]
-    # summary only (the block path: numpy MCAP reader, rosbags for the others; blocks of the
-    # same boundaries whatever the storage): bit-identical too
+    # summary only (the block path: numpy MCAP reader, SQLite's bulk read, rosbags for ROS 1;
+    # blocks of the same boundaries whatever the storage): bit-identical too
     block = []
-    for bag in (sim_bag, db, ros1):
+    for bag, how in ((sim_bag, "mcap-numpy"), (db, "sqlite3-bulk"), (ros1, "rosbags")):
         s, sess = replay.replay(bag, AlignConfig(latitude_deg=LAT), progress=False)
-        assert sess.block and sess.reading[0] == ("mcap-numpy" if bag == sim_bag else "rosbags")
+        assert sess.block and sess.reading[0] == how
         block.append(s["final"]["orientation_xyzw"])
     assert block[0] == block[1] == block[2]
 

@@ -606,8 +606,11 @@ class TopicBlocks:
             self.fallback_reason = "fast MCAP path disabled"
         else:
             try:
-                fast = McapTopicReader.for_reader(self.reader, self.connections)
-                it = iter(fast.blocks(MCAP_BLOCK_MAX))
+                if hasattr(self.reader, "fast_blocks"):      # a fastbag.FastBag
+                    it = iter(self.reader.fast_blocks(self.connections, MCAP_BLOCK_MAX))
+                else:
+                    fast = McapTopicReader.for_reader(self.reader, self.connections)
+                    it = iter(fast.blocks(MCAP_BLOCK_MAX))
             except Exception as e:  # noqa: BLE001 - McapUnusual, or rosbags internals moved
                 self.fallback_reason = one_line(e)
             else:
@@ -626,7 +629,10 @@ class TopicBlocks:
                         yield block
         items: list[tuple[object, int, bytes]] = []
         skip = delivered
-        for item in read_messages(self.reader, self.connections, self.path):
+        reader, connections = self.reader, self.connections
+        if hasattr(reader, "fast_blocks"):          # a FastBag: rosbags' reader, opened now
+            reader, connections = reader.rosbags(connections)
+        for item in read_messages(reader, connections, self.path):
             if skip:
                 skip -= 1
                 if skip == 0 and item[1] != last_ns:
@@ -661,7 +667,9 @@ class McapUnusual(Exception):
     """The MCAP file is outside what :class:`McapTopicReader` reads (rosbags reads it)."""
 
 
-class _ChunkIndex:
+class ChunkIndex:
+    """An MCAP Chunk Index record (summary section), as rosbags reads it."""
+
     __slots__ = ("start", "end", "offset", "length", "index_offsets", "index_length",
                  "compression", "compressed_size", "uncompressed_size")
 
@@ -764,7 +772,7 @@ class McapTopicReader:
                                            block.sizes[sl])
 
     @staticmethod
-    def _plan(path: Path, ids: frozenset[int]) -> list[_ChunkIndex]:
+    def _plan(path: Path, ids: frozenset[int]) -> list[ChunkIndex]:
         """The chunks holding the channels, in reading order (checked not to overlap)."""
         with open(path, "rb") as f:
             size = f.seek(0, 2)
@@ -781,7 +789,7 @@ class McapTopicReader:
                 raise McapUnusual("no summary section")
             f.seek(summary_start)
             data = f.read(size - 37 - summary_start)
-        chunks: list[_ChunkIndex] = []
+        chunks: list[ChunkIndex] = []
         pos = 0
         while pos < len(data):
             if pos + 9 > len(data):
@@ -793,7 +801,7 @@ class McapTopicReader:
             if pos + 9 + n > len(data):
                 raise McapUnusual("truncated summary record")
             if op == _OP_CHUNK_INDEX:
-                chunks.append(_ChunkIndex(data[pos + 9:pos + 9 + n]))
+                chunks.append(ChunkIndex(data[pos + 9:pos + 9 + n]))
             pos += 9 + n
         if not chunks:
             raise McapUnusual("no chunk index")
@@ -812,7 +820,7 @@ class McapTopicReader:
         return used
 
     @staticmethod
-    def _read_chunk(f, ci: _ChunkIndex, ids: frozenset[int]) -> MessageBlock:
+    def _read_chunk(f, ci: ChunkIndex, ids: frozenset[int]) -> MessageBlock:
         f.seek(ci.offset)
         data = f.read(ci.length + ci.index_length)
         if len(data) != ci.length + ci.index_length or data[0] != _OP_CHUNK:

@@ -56,11 +56,15 @@ results (test_bag_tools: attitude to 1e-9 rad, identical counts, times and flag 
 
 - with ``--output`` or ``--truth-topic``, every message goes through
   :meth:`ReplaySession.on_imu` in bag order, one by one, as the node takes it (the Imu
-  ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of :data:`READ_CHUNK`);
-- otherwise (summary, ``--csv``, ``--plot``) the Imu topic is read in blocks
-  (:class:`sins_align.io.bagio.TopicBlocks`: MCAP chunks parsed and sliced with numpy, rosbags
-  for other storages), decoded in bulk and fed to the estimator :data:`READ_CHUNK` samples
-  per :meth:`~sins_align.estimators.quasi_static.Aligner.update` (its fast path), cut only where the
+  ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of :data:`READ_CHUNK`;
+  ``/imu/data`` is the input's bytes with the orientation written in, as the node
+  republishes);
+- otherwise (summary, ``--csv``, ``--plot``) the usual rosbag2 bags are opened without
+  rosbags (:mod:`sins_align.io.fastbag`) and the Imu topic is read in blocks
+  (:class:`sins_align.io.bagio.TopicBlocks`: MCAP chunks parsed and sliced with numpy, sqlite3
+  windows aggregated by SQLite, rosbags for anything else), decoded in bulk and fed to the
+  estimator :data:`READ_CHUNK` samples per
+  :meth:`~sins_align.estimators.quasi_static.Aligner.update` (its fast path), cut only where the
   per-sample behaviour needs a sample alone or a boundary: a possible backward jump (the node's
   restart), a frame_id change and, for the CSV and the plot, the 10 Hz rows. With CSV/plot at 100 Hz
   those blocks are too short for the fast path (an order of magnitude slower than summary only;
@@ -89,12 +93,14 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  cli_main, deserialize, finite_or_none, need_matplotlib,
                                  one_line, open_reader, open_writer, pyplot, qos_profile,
                                  read_message_chunks, read_messages)
-from sins_align.io.cdr import (IMU_TYPE, ImuBatch, decode_imu_array, decode_imu_batch,
-                               reader_imu_layout)
+from sins_align.io.fastbag import FastBag, open_fast
+from sins_align.io.cdr import (IMU_TYPE, ImuBatch, ImuLayout, decode_imu_array,
+                               decode_imu_batch, reader_imu_layout)
 from sins_align.estimators.quasi_static import AlignConfig
 from sins_align.estimators.session import AlignmentSession
 from sins_align.ros.outputs import (StampClock, bias_estimates, euler_deg, imu_output,
-                                    imu_sample, motion_diagnostics, node_diagnostics)
+                                    imu_output_values, imu_sample, motion_diagnostics,
+                                    node_diagnostics)
 from sins_align.io.velocity import NAVSAT_TYPE, VELOCITY_FRAMES, VELOCITY_TYPES
 from sins_align.ros.params import (NODE_NAME, NODE_PARAMS, VEHICLES, VelocityReference,
                                    check_param, defaults, estimator_config, load_params_yaml,
@@ -399,7 +405,10 @@ class ReplaySession:
         self._last_velocity_ns: int | None = None
         #: the estimator estimates its biases (the in-motion one): reported in the summary
         self._has_biases = hasattr(self.al, "bias_gyro")
-        self.msgs = Messages()
+        self.msgs = Messages() if writer is not None else None   # rosbags: only to write
+        #: /imu/data from the input bytes (``on_imu``'s ``raw``); False: built by rosbags
+        self.bytes_output = True
+        self.out_layout: ImuLayout | None = None
         self.writer = writer
         self.with_truth = with_truth
         self.truth = TruthMatcher() if with_truth else None
@@ -461,8 +470,11 @@ class ReplaySession:
             else:
                 feed.on_navsat(msg)
 
-    def on_imu(self, msg):
-        """One sensor_msgs/Imu message (rosbags object, ROS 1 or ROS 2 layout).
+    def on_imu(self, msg, raw: bytes | None = None):
+        """One sensor_msgs/Imu message (rosbags object, ROS 1 or ROS 2 layout); ``raw``: its
+        ROS 2 CDR bytes, if known (the /imu/data output is then these bytes with the
+        orientation written in, as the node republishes them, instead of a message built
+        and serialised by rosbags: the same bytes, test_replay_output).
 
         The data path of align_node's ``_on_imu``: stamps far behind the last accepted one
         several times in a row restart the alignment; accepted samples (and the first one)
@@ -484,7 +496,7 @@ class ReplaySession:
             self.last_header = (int(st.sec), int(st.nanosec), msg.header.frame_id)
             self.last_frame_id = msg.header.frame_id
             if wr is not None:
-                self._publish_imu(msg, ns)
+                self._publish_imu(msg, ns, raw)
         self._publish_aligned(ns)
         tick = self.euler_tick.due(ns)
         if wr is not None:
@@ -493,7 +505,8 @@ class ReplaySession:
                     self.msgs.header(*self.last_header), euler_deg(al))))
             if self.diag_tick.due(ns):
                 self._publish_diagnostics(ns)
-        if tick:
+        if tick and (self._csv is not None or self.series is not None
+                     or self.truth is not None):      # rows only where they are kept
             self._row(ns)
         if self.truth is not None:
             self._take(self.truth.resolve(ns))
@@ -595,7 +608,15 @@ class ReplaySession:
             self._take(self.truth.resolve(self.last_ns))
 
     # -- node outputs ----------------------------------------------------------------------
-    def _publish_imu(self, msg, ns: int):
+    def _publish_imu(self, msg, ns: int, raw: bytes | None = None):
+        if raw is not None and self.bytes_output:
+            lay = self.out_layout
+            if lay is None or not lay.matches(raw):
+                lay = self.out_layout = ImuLayout.of(raw)
+            if lay is not None:
+                self.writer.write(self.c_imu, ns,
+                                  lay.with_orientation(raw, imu_output_values(self.al)))
+                return
         m = self.msgs
         out = imu_output(self.al)
         w, a = msg.angular_velocity, msg.linear_acceleration
@@ -861,8 +882,9 @@ class ImuSamples:
     @classmethod
     def join(cls, parts: list) -> "ImuSamples":
         if len(parts) == 1:
-            p = parts[0]
-            return cls(p.sec, p.nanosec, list(p.frame_id), p.gyro, p.accel)
+            p = parts[0]        # contiguous (a batch's gyro is a strided view of its floats:
+            return cls(p.sec, p.nanosec, list(p.frame_id),   # the estimator reads it 2x slower)
+                       np.ascontiguousarray(p.gyro), np.ascontiguousarray(p.accel))
         return cls(np.concatenate([p.sec for p in parts]),
                    np.concatenate([p.nanosec for p in parts]),
                    [x for p in parts for x in p.frame_id],
@@ -930,15 +952,18 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
            params: dict[str, Any] | None = None,
            euler_period_ns: int = EULER_PERIOD_NS, per_sample: bool = False,
            fast_mcap: bool = True, reference: VelocityReference | None = None,
-           ) -> tuple[dict[str, Any], ReplaySession]:
+           bytes_output: bool = True) -> tuple[dict[str, Any], ReplaySession]:
     """Replay ``bag`` and write the optional outputs to the given (temporary) paths.
 
     Two paths, same results: with an ``output`` bag or a ``truth_topic`` (or ``per_sample``,
     or an Imu definition the bulk decoder does not know) every message goes through
     :meth:`ReplaySession.on_imu`, in bag order, as the node takes it; otherwise the Imu
     messages are read in blocks (:class:`~sins_align.io.bagio.TopicBlocks`: MCAP parsed with
-    numpy, ``fast_mcap=False`` to read with rosbags only), decoded in bulk and fed to
-    :meth:`ReplaySession.on_imu_block`.
+    numpy, sqlite3 in bulk, the usual bags opened without rosbags by
+    :func:`sins_align.io.fastbag.open_fast`; ``fast_mcap=False`` to open and read with
+    rosbags only), decoded in bulk and fed to :meth:`ReplaySession.on_imu_block`.
+    ``bytes_output=False``: every /imu/data message built and serialised by rosbags (the
+    reference of the default, which writes the orientation into the input's bytes).
 
     With a ``reference`` whose topic is set (``config`` is then a MotionConfig) the velocity
     topic (and the NavSatFix topic) are read first, sorted by header stamp, and merged with
@@ -948,15 +973,19 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
     Returns the summary dict and the session (for the plot). Raises CliError on bad input.
     """
     t_wall = time.perf_counter()
-    reader = open_reader(bag)
+    motion = reference is not None and reference.enabled
+    # the block path's usual bags open without rosbags (its import is most of a cold start)
+    reader = (open_fast(bag) if fast_mcap and not per_sample and output is None
+              and not truth_topic and not motion else None)
+    if reader is None:
+        reader = open_reader(bag)
     writer = None
     csv_file = None
     try:
         topic, conns = select_imu_connections(reader, topic, bag)
         truth_conns = select_truth_connections(reader, truth_topic, bag) if truth_topic else []
-        motion = reference is not None and reference.enabled
         refs = read_references(reader, reference, bag) if motion else []
-        layout = reader_imu_layout(reader)
+        layout = "ros2" if isinstance(reader, FastBag) else reader_imu_layout(reader)
         block = (not per_sample and output is None and not truth_conns
                  and layout is not None)
         if output is not None:
@@ -967,6 +996,7 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
                                 with_truth=bool(truth_conns), keep_plot=keep_plot,
                                 euler_period_ns=euler_period_ns, block=block,
                                 reference=reference if motion else None)
+        session.bytes_output = bytes_output
         session.add_references(refs)
         total = sum(c.msgcount for c in conns + truth_conns)
         bar = Progress(total, PROG, enabled=progress)
@@ -981,12 +1011,21 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
                 session.on_imu_block(samples)
                 n += len(samples)
                 bar.update(n)
-            session.reading = ("mcap-numpy" if blocks.fallback_reason is None else
-                               "rosbags" if blocks.fast_messages == 0 else "mcap-numpy+rosbags",
+            fast_name = "sqlite3-bulk" if getattr(reader, "storage", "") == "sqlite3" \
+                else "mcap-numpy"
+            session.reading = (fast_name if blocks.fallback_reason is None else
+                               "rosbags" if blocks.fast_messages == 0 else f"{fast_name}+rosbags",
                                blocks.fallback_reason)
         else:
             truth_ids = {id(c) for c in truth_conns}
-            for chunk in read_message_chunks(reader, conns + truth_conns, bag, READ_CHUNK):
+            if truth_conns or per_sample or layout != "ros2":
+                chunks = read_message_chunks(reader, conns + truth_conns, bag, READ_CHUNK)
+                session.reading = ("rosbags", "per-sample path")
+            else:       # --output: the Imu topic alone, read as the block path reads it
+                blocks = TopicBlocks(reader, conns, bag, READ_CHUNK, fast=fast_mcap)
+                chunks = ([(conns[0], ns, mb.raw(i)) for i, ns in enumerate(mb.log_ns.tolist())]
+                          for mb in blocks)
+            for chunk in chunks:
                 imu_items = [it for it in chunk if id(it[0]) not in truth_ids] if truth_ids \
                     else chunk
                 imu_msgs = imu_messages(reader, imu_items, layout, bag)
@@ -994,11 +1033,14 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
                     if id(conn) in truth_ids:
                         session.on_truth(deserialize(reader, raw, conn.msgtype, bag, log_ns))
                     else:
-                        session.on_imu(next(imu_msgs))
+                        session.on_imu(next(imu_msgs), raw if layout == "ros2" else None)
                     n += 1
                     if n % 512 == 0:
                         bar.update(n)
-            session.reading = ("rosbags", "per-sample path")
+            if not session.reading[0]:
+                session.reading = ("mcap-numpy" if blocks.fallback_reason is None else "rosbags"
+                                   if blocks.fast_messages == 0 else "mcap-numpy+rosbags",
+                                   blocks.fallback_reason)
         bar.close()
         if session.samples == 0:
             raise CliError(f"topic {topic} in {bag} has no messages")
