@@ -134,6 +134,9 @@ class FastPath:
         B, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine, sc)
         if uniform:
             self._prefetch_schedule(lengths, dt)
+        if self.n == 1:
+            self._one_run_intervals(dt, B[..., 0], segT, sdt, lengths, track_B, offset)
+            return
         # P = C0 B[i] row by row: P[k] = C0 times column k of B[i] (Qm, then A0 Aa Ab, then
         # V0 Va Vb); the velocity increment sum_k M_k C0 A_k is G @ P[3:6] as (9, N) rows
         G = self._Gv
@@ -207,6 +210,86 @@ class FastPath:
         self.v_sum = vs.T.copy()
         if track_B:
             self._B = np.ascontiguousarray(Bt.transpose(2, 1, 0))
+
+    def _one_run_intervals(self, dt, B, segT, sdt, lengths, track_B: bool, offset):
+        """The interval loop of :meth:`_advance_segments` for a single run (the Aligner's
+        case) on Python floats: the attitude is nine numbers, the velocity and its sum three
+        each, and every interval's sums come from lists made in one go. The same steps as
+        the loop over N runs (C <- R E C Q, v += sum_k M_k C A_k + g T, the update, the
+        feedback), but a 3x3 product in floats costs half of one numpy call and nothing is
+        allocated. ``B``: (S, 3, K), the sums of :func:`preintegrate` of the one run."""
+        period = self._period()
+        uniform = np.ndim(dt) == 0
+        fine = self.fine
+        H = measurement_matrix("constant")
+        ends = np.cumsum(lengths).tolist()
+        S = len(lengths)
+        Qs = B[:, :, :3].reshape(S, 9).tolist()         # body rotation over the interval
+        As = B[:, :, 3:6].reshape(S, 9).tolist()        # columns A0, Aa, Ab (m/s)
+        Vs = B[:, :, 6:9].reshape(S, 9).tolist() if fine else None   # V0, Va, Vb (m)
+        U, U2 = self._Ue.ravel().tolist(), self._Ue2.ravel().tolist()
+        C = self.C[0].ravel().tolist()
+        v0, v1, v2 = self.v[0].tolist()
+        s0, s1, s2 = self.v_sum[0].tolist()
+        g0, g1, g2 = self.g_n.tolist()
+        Bt = self._B[0].ravel().tolist() if track_B else None
+        z, x = np.empty((3, 1)), np.empty((6, 1))
+        earth = {}                                   # uniform: E of each length m
+        for i, m in enumerate(lengths.tolist()):
+            if uniform:
+                Ti, dti = m * dt, dt
+                E = earth.get(m) or earth.setdefault(m, self._earth_rot(m, dt).ravel().tolist())
+                cg = dt * dt * m * (m + 1) / 2.0
+            else:
+                Ti, dti = float(segT[i]), float(dt[ends[i] - 1])
+                E = so3_exp(-self.w_ie * Ti).ravel().tolist()
+                cg = float(sdt[i])
+            if track_B:
+                Bt = _mm3(Bt, Qs[i])
+            if fine:
+                a0, a1, a2 = _increment(_mm3(C, Vs[i]), U, U2)
+                s0, s1, s2 = s0 + v0 * Ti, s1 + v1 * Ti, s2 + v2 * Ti
+                s0, s1, s2 = s0 + a0 + g0 * cg, s1 + a1 + g1 * cg, s2 + a2 + g2 * cg
+            a0, a1, a2 = _increment(_mm3(C, As[i]), U, U2)
+            v0, v1, v2 = v0 + a0 + g0 * Ti, v1 + a1 + g1 * Ti, v2 + a2 + g2 * Ti
+            X = _mm3(E, _mm3(C, Qs[i]))
+            self.t_int += Ti
+            self.t_acc += Ti
+            jumps = (lambda: self._disc_m(m, dt)) if uniform else (
+                lambda: self._disc_var(part(dt, ends[i] - m, ends[i])))
+            Hu, scale = self._update_due(self.t_acc, period, dti, H, uniform)
+            if Hu is None:                          # partial interval: no update yet
+                self._cov_block(m, dt, None, 0.0, jumps)
+                C = X
+                continue
+            before = self.P, self.S, self._node
+            Kg, Sinv = self._cov_block(m, dt, Hu, scale, jumps)
+            if fine:
+                t = self.t_acc
+                z[0, 0], z[1, 0], z[2, 0] = s0 / t, s1 / t, s2 / t
+                s0 = s1 = s2 = 0.0
+            else:
+                z[0, 0], z[1, 0], z[2, 0] = v0, v1, v2
+            self._innovate(z, Kg, Sinv, out=x)
+            self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
+            x0, x1, x2, x3, x4, x5 = x[:, 0].tolist()
+            # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
+            R = so3_exp_entries(x0, x1, x2)
+            C = _mm3(R, X)
+            if fine:                       # the velocity turns with the attitude
+                v0, v1, v2 = (R[0] * v0 + R[1] * v1 + R[2] * v2,
+                              R[3] * v0 + R[4] * v1 + R[5] * v2,
+                              R[6] * v0 + R[7] * v1 + R[8] * v2)
+            v0, v1, v2 = v0 - x3, v1 - x4, v2 - x5
+            self.t_acc = 0.0
+            if self.on_update is not None and offset is not None:
+                self.C, self.v = np.array(C).reshape(1, 3, 3), np.array([[v0, v1, v2]])
+                self.on_update(offset + ends[i] - 1)
+        self.C = np.array(C).reshape(1, 3, 3)
+        self.v = np.array([[v0, v1, v2]])
+        self.v_sum = np.array([[s0, s1, s2]])
+        if track_B:
+            self._B = np.array(Bt).reshape(1, 3, 3)
 
     def _coast(self, before, m: int, dt, jumps):
         """P and S propagated over the interval from ``before`` (P, S, cache node) with no
@@ -388,6 +471,25 @@ def times_rows(R, Xt, out):
         np.matmul(Xt[..., 0], R[..., 0].T, out=out[..., 0])
     else:
         np.einsum("rjn,kjn->krn", R, Xt, out=out)
+
+
+def _mm3(a, b) -> list:
+    """The product of two 3x3 matrices given as nine floats row by row (lists or tuples)."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return [a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
+            a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
+            a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8]
+
+
+def _increment(CA, U, U2) -> tuple:
+    """``sum_k M_k y_k`` with M = I, U, U2 and y_k column k of CA (nine floats row by row;
+    U, U2 the same): the velocity (sum) increment of an interval, C times the sums A_k
+    (or V_k) turned by the Earth-rate polynomial (:func:`sins_align.core.preint.earth_poly`)."""
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = CA
+    return tuple(c + u[0] * c1 + u[1] * c4 + u[2] * c7 + w[0] * c2 + w[1] * c5 + w[2] * c8
+                 for c, u, w in ((c0, U[0:3], U2[0:3]), (c3, U[3:6], U2[3:6]),
+                                 (c6, U[6:9], U2[6:9])))
 
 
 def part(dt, a: int, b: int):
