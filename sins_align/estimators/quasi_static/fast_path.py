@@ -487,9 +487,11 @@ def _increment(CA, U, U2) -> tuple:
     U, U2 the same): the velocity (sum) increment of an interval, C times the sums A_k
     (or V_k) turned by the Earth-rate polynomial (:func:`sins_align.core.preint.earth_poly`)."""
     c0, c1, c2, c3, c4, c5, c6, c7, c8 = CA
-    return tuple(c + u[0] * c1 + u[1] * c4 + u[2] * c7 + w[0] * c2 + w[1] * c5 + w[2] * c8
-                 for c, u, w in ((c0, U[0:3], U2[0:3]), (c3, U[3:6], U2[3:6]),
-                                 (c6, U[6:9], U2[6:9])))
+    u0, u1, u2, u3, u4, u5, u6, u7, u8 = U
+    w0, w1, w2, w3, w4, w5, w6, w7, w8 = U2
+    return (c0 + u0 * c1 + u1 * c4 + u2 * c7 + w0 * c2 + w1 * c5 + w2 * c8,
+            c3 + u3 * c1 + u4 * c4 + u5 * c7 + w3 * c2 + w4 * c5 + w5 * c8,
+            c6 + u6 * c1 + u7 * c4 + u8 * c7 + w6 * c2 + w7 * c5 + w8 * c8)
 
 
 def part(dt, a: int, b: int):

@@ -95,18 +95,22 @@ def _triad(x1, x2):
     return np.stack([t1, t2, np.cross(t1, t2)], axis=-1)
 
 
-def _bartlett_variance(r: np.ndarray, a: np.ndarray, band: int) -> np.ndarray:
-    """Variance of ``sum_k a_k r_k`` for a stationary residual r (M, ...) observed once:
-    sum over lags of (1 - |l|/band) gamma(l) c_a(l), gamma from r, c_a of the weights."""
+def _bartlett_variances(r: np.ndarray, weights: np.ndarray, band: int) -> list:
+    """Variance of ``sum_k a_k r_k`` for a stationary residual r (M, ...) observed once, for
+    each row ``a`` of ``weights`` (W, M): sum over lags of (1 - |l|/band) gamma(l) c_a(l),
+    gamma from r (its transform computed once for all the weights), c_a of the weights."""
     M = len(r)
     nfft = 1 << int(math.ceil(math.log2(2 * M)))
     R = np.fft.rfft(r, nfft, axis=0)
     gam = np.fft.irfft(np.abs(R) ** 2, nfft, axis=0)[:band] / M
-    A = np.fft.rfft(a, nfft)
-    ca = np.fft.irfft(np.abs(A) ** 2, nfft)[:band]
-    wts = (1.0 - np.arange(band) / band) * ca
-    wts[1:] *= 2.0
-    return np.maximum(np.tensordot(wts, gam, axes=(0, 0)), 0.0)
+    out = []
+    for a in weights:
+        A = np.fft.rfft(a, nfft)
+        ca = np.fft.irfft(np.abs(A) ** 2, nfft)[:band]
+        wts = (1.0 - np.arange(band) / band) * ca
+        wts[1:] *= 2.0
+        out.append(np.maximum(np.tensordot(wts, gam, axes=(0, 0)), 0.0))
+    return out
 
 
 def inertial_alignment(dt: np.ndarray, w: np.ndarray, f: np.ndarray, w_ie: np.ndarray,
@@ -145,9 +149,8 @@ def inertial_alignment(dt: np.ndarray, w: np.ndarray, f: np.ndarray, w_ie: np.nd
     coef = np.einsum("km,mni->kni", A, D)
     r = D - np.einsum("mk,kni->mni", X, coef)             # (M, N, 3) residual displacement
     band = max(2, len(idx) // 2)
-    var2 = _bartlett_variance(r, A[2], band)              # (N, 3) of the t^2 coefficient
-    var3 = _bartlett_variance(r, A[3], band)
-    var1 = _bartlett_variance(r, A[1], band)
+    # (N, 3) each: of the t^2, t^3 and t coefficients
+    var2, var3, var1 = _bartlett_variances(r, A[[2, 3, 1]], band)
     up = float(np.linalg.norm(cg[2]))
     east = float(np.linalg.norm(cg[3][:2]))
     horiz = math.hypot(w_ie[0], w_ie[1])              # Omega cos(lat)
