@@ -48,15 +48,11 @@ class RecentMotion:
         if m >= self.SIZE:
             dts, w, f = dts[-self.SIZE:], w[-self.SIZE:], f[-self.SIZE:]
             m = self.SIZE
-        i, k = self._i, 0                 # rows i.. up to the ring's end, then from row 0
-        while k < m:
-            j = min(m - k, self.SIZE - i)
-            rows = self._a[i:i + j]
-            rows[:, 0] = dts[k:k + j]
-            rows[:, 1:4] = w[k:k + j]
-            rows[:, 4:7] = f[k:k + j]
-            i, k = (i + j) % self.SIZE, k + j
-        self._i = i
+        idx = (self._i + np.arange(m)) % self.SIZE
+        self._a[idx, 0] = dts
+        self._a[idx, 1:4] = w
+        self._a[idx, 4:7] = f
+        self._i = (self._i + m) % self.SIZE
         self._n = min(self._n + m, self.SIZE)
 
     def last(self, seconds: float) -> np.ndarray:
