@@ -266,13 +266,17 @@ class FastPath:
             Kg, Sinv = self._cov_block(m, dt, Hu, scale, jumps)
             if fine:
                 t = self.t_acc
-                z[0, 0], z[1, 0], z[2, 0] = s0 / t, s1 / t, s2 / t
+                z0, z1, z2 = s0 / t, s1 / t, s2 / t
                 s0 = s1 = s2 = 0.0
             else:
-                z[0, 0], z[1, 0], z[2, 0] = v0, v1, v2
-            self._innovate(z, Kg, Sinv, out=x)
-            self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
-            x0, x1, x2, x3, x4, x5 = x[:, 0].tolist()
+                z0, z1, z2 = v0, v1, v2
+            xs = self._innovate_one(z0, z1, z2, Kg, Sinv)
+            if xs is None:                  # gated, absorbed or re-inflated: the array path
+                z[0, 0], z[1, 0], z[2, 0] = z0, z1, z2
+                self._innovate(z, Kg, Sinv, out=x)
+                self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
+                xs = x[:, 0].tolist()
+            x0, x1, x2, x3, x4, x5 = xs
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
             R = so3_exp_entries(x0, x1, x2)
             C = _mm3(R, X)
@@ -344,7 +348,7 @@ class FastPath:
             plan.append((m, *self._update_due(t_acc, period, dt, H0)))
             if plan[-1][1] is not None:
                 t_acc = 0.0
-        keys = [(m, dt, sc, None if H is None else H.tobytes()) for m, H, sc in plan]
+        keys = [(m, dt, sc, self._h_bytes(H)) for m, H, sc in plan]
         P, S, i = self.P[0], self.S[0], 0
         while i < len(keys):                        # the part of the chain already built
             hit = node.get(keys[i])
@@ -409,7 +413,7 @@ class FastPath:
             node = self._node if self._node is not None else self._schedule_root()
         self._node = None                            # P and S are about to move on
         if node is not None:
-            key = (m, dt, scale, None if H is None else H.tobytes())
+            key = (m, dt, scale, self._h_bytes(H))
             hit = node.get(key)
             if hit is not None:
                 self.P, self.S, K, Sinv, self._node = hit
@@ -426,6 +430,19 @@ class FastPath:
             self._node = {}
             node[key] = (self.P, self.S, K, Sinv, self._node)
         return K, Sinv
+
+    def _h_bytes(self, H):
+        """H's bytes (the schedule keys' part for the measurement; None for none), kept by
+        the array's identity: the loop asks for the same few matrices at every update. The
+        memo holds the arrays themselves (so no identity is reused) and at most 64 of them."""
+        if H is None:
+            return None
+        hit = self._h_memo.get(id(H))
+        if hit is None:
+            if len(self._h_memo) >= 64:
+                self._h_memo.clear()
+            hit = self._h_memo[id(H)] = (H, H.tobytes())
+        return hit[1]
 
     def _schedule_root(self):
         """The cache chain of the current pass (None when the covariance is per run)."""
