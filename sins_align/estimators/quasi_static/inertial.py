@@ -95,22 +95,35 @@ def _triad(x1, x2):
     return np.stack([t1, t2, np.cross(t1, t2)], axis=-1)
 
 
-def _bartlett_variances(r: np.ndarray, weights: np.ndarray, band: int) -> list:
+def _fft_length(n: int) -> int:
+    """The smallest 2^a 3^b 5^c >= n (a length the FFT handles fast)."""
+    best = 1 << max(0, (n - 1).bit_length())
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            m = p35 << max(0, (-(-n // p35) - 1).bit_length())     # times 2^a, >= n
+            best = min(best, m)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def _bartlett_variances(r: np.ndarray, weights: np.ndarray, band: int) -> np.ndarray:
     """Variance of ``sum_k a_k r_k`` for a stationary residual r (M, ...) observed once, for
     each row ``a`` of ``weights`` (W, M): sum over lags of (1 - |l|/band) gamma(l) c_a(l),
-    gamma from r (its transform computed once for all the weights), c_a of the weights."""
+    gamma from r, c_a of the weights; (W, ...). The lagged products come from FFTs of a
+    length of at least M + band, so that no lag below ``band`` wraps round: the transform of
+    r is taken once for all the weights, those of the weights in one call."""
     M = len(r)
-    nfft = 1 << int(math.ceil(math.log2(2 * M)))
+    nfft = _fft_length(M + band)
     R = np.fft.rfft(r, nfft, axis=0)
     gam = np.fft.irfft(np.abs(R) ** 2, nfft, axis=0)[:band] / M
-    out = []
-    for a in weights:
-        A = np.fft.rfft(a, nfft)
-        ca = np.fft.irfft(np.abs(A) ** 2, nfft)[:band]
-        wts = (1.0 - np.arange(band) / band) * ca
-        wts[1:] *= 2.0
-        out.append(np.maximum(np.tensordot(wts, gam, axes=(0, 0)), 0.0))
-    return out
+    A = np.fft.rfft(weights, nfft, axis=-1)
+    ca = np.fft.irfft(np.abs(A) ** 2, nfft, axis=-1)[:, :band]
+    wts = (1.0 - np.arange(band) / band) * ca
+    wts[:, 1:] *= 2.0
+    return np.maximum(np.tensordot(wts, gam, axes=(1, 0)), 0.0)
 
 
 def inertial_alignment(dt: np.ndarray, w: np.ndarray, f: np.ndarray, w_ie: np.ndarray,
