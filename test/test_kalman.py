@@ -35,21 +35,19 @@ def alignment_case(fine: bool, r_std: float, m: int = 10, dt: float = 0.01,
     return fl.P[0], Phi, Qd, H, R
 
 
-@pytest.mark.parametrize("fine,r_std,m,n,chunk,grade", [
-    (False, 0.0, 10, 600, 16, "navigation"),    # coarse pass, 100 Hz, update every 0.1 s
-    (False, 0.0, 10, 600, 64, "navigation"),    # the same in the fast path's chunks of 64
-    (False, 0.0, 10, 600, 64, "consumer"),      # ... where the first chunk of 64 fails
-    (False, 0.0, 1, 300, 16, "navigation"),     # the paper's schedule: an update every sample
-    (True, 1e-4, 100, 600, 16, "navigation"),   # fine pass at the noise floor, 1 s intervals
-    (True, 1e-2, 100, 37, 16, "navigation"),    # heavy sway; n not a multiple of the chunk
-    (True, 1e-7, 100, 50, 16, "navigation"),    # far below the floor: chunks must shrink
+@pytest.mark.parametrize("fine,r_std,m,n", [
+    (False, 0.0, 10, 600),       # coarse pass, 100 Hz, update every 0.1 s
+    (False, 0.0, 1, 300),        # the paper's schedule: an update at every sample
+    (True, 1e-4, 100, 600),      # fine pass at the noise floor, 1 s intervals
+    (True, 1e-2, 100, 37),       # fine pass, heavy sway; n not a multiple of the chunk
+    (True, 1e-7, 100, 50),       # far below the floor: the chunk check must shrink chunks
 ])
-def test_riccati_steps_equal_the_plain_recursion(fine, r_std, m, n, chunk, grade):
+def test_riccati_steps_equal_the_plain_recursion(fine, r_std, m, n):
     """Gains to 1e-9 relative and covariances to 1e-9 of sqrt(P_ii P_jj) (the plain
     recursion's own rounding in the well-measured velocity block is ~1e-10 of that)."""
-    P0, Phi, Qd, H, R = alignment_case(fine, r_std, m, grade=grade)
+    P0, Phi, Qd, H, R = alignment_case(fine, r_std, m)
     P1, K1, S1 = plain(P0, Phi, Qd, H, R, n)
-    P2, K2, S2 = riccati_steps(P0, Phi, Qd, H, R, n, chunk)
+    P2, K2, S2 = riccati_steps(P0, Phi, Qd, H, R, n)
     assert P2.shape == (n, 6, 6) and K2.shape == (n, 6, 3) and S2.shape == (n, 3, 3)
     scale = np.sqrt(np.einsum("kii,kjj->kij", P1, P1))
     assert np.max(np.abs(P2 - P1) / scale) < 1e-9

@@ -368,11 +368,7 @@ class FastPath:
                     P, S = Phi @ P @ Phi.T + Qd, Phi @ S + Gm
                     steps.append((P[None], S[None], None, None))
             else:
-                # the coarse pass's long runs (600 steps a minute) in chunks of 64: they pass
-                # the check for the navigation and tactical grades (the consumer grade falls
-                # back to 32 after one failed chunk); the fine pass's fail at 32, so 16 there
-                chunk = 64 if not self.fine and j - i >= 256 else 16
-                Ps, Ks, Sn = riccati_steps(P, Phi, Qd, H, self.R[0] * scale, j - i, chunk)
+                Ps, Ks, Sn = riccati_steps(P, Phi, Qd, H, self.R[0] * scale, j - i)
                 IKH = np.eye(6) - Ks @ H
                 Ss = affine_scan(IKH @ Phi, IKH @ Gm, S)
                 HS = H @ (Phi @ np.concatenate([S[None], Ss[:-1]]) + Gm)  # H S before update
