@@ -121,12 +121,12 @@ class FastPath:
         """Samples cut into update intervals (``lengths``): pre-integration of all of them,
         then the intervals one by one (mechanization in closed form, update when due).
 
-        In the loop the state is component-major, the attitude transposed:
+        A single run (the Aligner) takes :meth:`_one_run_intervals`, on floats. For N runs the
+        state in the loop is component-major, the attitude transposed:
         ``Ct[k, i, n] = C[i, k, n]`` and ``v[:, n]`` for run n, so that each product of
-        per-run 3x3 matrices is one einsum over contiguous rows of the N runs (a plain
-        matrix product for one run), and each product with a matrix shared by all runs is
-        one GEMM. Every array of N runs is written into a reused scratch array (no page
-        faults per update).
+        per-run 3x3 matrices is one einsum over contiguous rows of the N runs, and each
+        product with a matrix shared by all runs is one GEMM. Every array of N runs is
+        written into a reused scratch array (no page faults per update).
         """
         period = self._period()
         uniform = np.ndim(dt) == 0
@@ -193,10 +193,7 @@ class FastPath:
                 self._innovate(v, Kg, Sinv, out=x)
             self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
-            if n == 1:                                        # nine floats
-                R = np.array(so3_exp_entries(*x[:3, 0].tolist()))
-            else:
-                R = np.stack(so3_exp_entries(x[0], x[1], x[2]), out=scratch_array(sc, "R", (9, n)))
+            R = np.stack(so3_exp_entries(x[0], x[1], x[2]), out=scratch_array(sc, "R", (9, n)))
             times_rows(R.reshape(3, 3, n), X, Ct)
             if self.fine:                       # the velocity turns with the attitude
                 v[...] = np.einsum("ijn,jn->in", R.reshape(3, 3, n), v)
@@ -474,20 +471,14 @@ class FastPath:
 def rows_times(Ct, M, out):
     """``out[k, i, n] = sum_j Ct[j, i, n] M[j, k, n]``: C M for each run n, component-major
     with C transposed (``Ct[j, i, n] = C[i, j, n]``), so out is (C M) transposed. One einsum
-    over the runs; for a single run a plain matrix product (half the call overhead)."""
-    if out.shape[-1] == 1:
-        np.matmul(M[..., 0].T, Ct[..., 0], out=out[..., 0])
-    else:
-        np.einsum("jin,jkn->kin", Ct, M, out=out)
+    over the runs (a single run takes :meth:`FastPath._one_run_intervals` instead)."""
+    np.einsum("jin,jkn->kin", Ct, M, out=out)
 
 
 def times_rows(R, Xt, out):
     """``out[k, r, n] = sum_j R[r, j, n] Xt[k, j, n]``: R X for each run n, with X and the
     result transposed as in :func:`rows_times`."""
-    if out.shape[-1] == 1:
-        np.matmul(Xt[..., 0], R[..., 0].T, out=out[..., 0])
-    else:
-        np.einsum("rjn,kjn->krn", R, Xt, out=out)
+    np.einsum("rjn,kjn->krn", R, Xt, out=out)
 
 
 def _mm3(a, b) -> list:
