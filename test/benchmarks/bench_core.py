@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 
+import sins_align
 from sins_align.estimators.quasi_static.schedule import SHARED_SCHEDULES
 from sins_align.estimators.quasi_static.aligner import Aligner, AlignConfig, AlignmentFilter
 from sins_align.core.rotation import dcm_from_rpy
@@ -72,13 +73,18 @@ def cold_fresh_process(duration: float = 300.0, runs: int = 5) -> list[float]:
     """Seconds per sample of the first Aligner.update(array) in each of ``runs`` fresh
     interpreters (``duration`` s of 100 Hz navigation-grade data)."""
     s = simulate(duration, 100.0, 34.0, specs="navigation", seed=1)
+    # the child imports the package this script imported (run from a temporary directory,
+    # so that its own working directory cannot shadow it)
+    root = os.path.dirname(os.path.dirname(os.path.abspath(sins_align.__file__)))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "imu.npz")
         np.savez(path, t=s.t, gyro=s.gyro, accel=s.accel)
         out = []
         for _ in range(runs):
             r = subprocess.run([sys.executable, "-c", COLD_CHILD, path], check=True,
-                               capture_output=True, text=True)
+                               capture_output=True, text=True, cwd=tmp, env=env)
             out.append(float(r.stdout.split()[0]) / len(s.t))
     return out
 
