@@ -208,6 +208,21 @@ def prefix_rotations(dt, w: np.ndarray) -> tuple:
     return q
 
 
+def prefix_rotations_components(rx, ry, rz) -> tuple:
+    """:func:`prefix_rotations` of rotation increments given component-major: ``rx, ry, rz``
+    (equal C-contiguous shapes (S, L, ...), rad; overwritten) are exp'd and their inclusive
+    prefix products along axis 1 returned as quaternion components (x, y, z, w)."""
+    q = _qexp_c(rx, ry, rz)
+    _scan(q)
+    return q
+
+
+def rotate_components(q, v) -> None:
+    """Rotate component vectors ``v = (vx, vy, vz)`` by unit quaternion components
+    ``q = (x, y, z, w)`` of the same shape, in place."""
+    _qrot_c(q, v)
+
+
 #: Elements per sample position in one piece of :func:`preintegrate`: the scratch arrays
 #: stay in cache and below malloc's mmap threshold (bigger ones cost page faults).
 _PIECE = 1 << 13

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sins_align.core.earth import OMEGA_IE
-from sins_align.core.preint import prefix_rotations, rotate_vectors
+from sins_align.core.preint import (prefix_rotations, prefix_rotations_components,
+                                    rotate_components)
 from sins_align.core.rotation import dcm_from_quat, so3_exp
 from sins_align.core.specs import DEG
 
@@ -290,28 +291,30 @@ class UnitsMonitor:
 
     def _accumulated_windows(self, dts, w, f, wins) -> list:
         """:meth:`_accumulated` of each window (k, end, T) of ``wins`` (the first one from the
-        current state, the others from a new window), computed together: one prefix scan of
-        the windows padded with zero rates (identity rotations) to a multiple of 64 samples
-        (a length the scan splits well), the forces turned by quaternions, one bincount per
-        sum column."""
+        current state, the others from a new window), computed together, component-major:
+        one prefix scan of the windows padded with zero rates (identity rotations) to a
+        multiple of 64 samples (a length the scan splits well), the forces turned by
+        quaternions in place, one bincount per sum column."""
         S = len(wins)
         lens = np.array([end - k for k, end, _ in wins])
         L = -(-int(lens.max()) // 64) * 64
         dtp, T = np.zeros((S, L)), np.zeros((S, L))          # padding: no time, no rotation
-        wp, fp = np.zeros((S, L, 3)), np.zeros((S, L, 3))
+        rot, udt = np.zeros((3, S, L)), np.zeros((3, S, L))  # w dt, then f dt turned
         for i, (k, end, Ti) in enumerate(wins):
-            dtp[i, :end - k], T[i, :end - k] = dts[k:end], Ti
-            wp[i, :end - k], fp[i, :end - k] = w[k:end], f[k:end]
-        q = prefix_rotations(dtp, wp)
-        fdt = fp * dtp[..., None]
-        udt = rotate_vectors(q, fdt)                   # in the window's start frame
-        udt[0] = udt[0] @ self.B.T                     # the first window goes on from B
+            m = end - k
+            dtp[i, :m], T[i, :m] = dts[k:end], Ti
+            rot[:, i, :m] = (w[k:end] * dts[k:end, None]).T
+            udt[:, i, :m] = (f[k:end] * dts[k:end, None]).T
+        fdt = udt.copy()
+        q = prefix_rotations_components(rot[0], rot[1], rot[2])
+        rotate_components(q, tuple(udt))               # into the window's start frame
+        udt[:, 0] = self.B @ udt[:, 0]                 # the first window goes on from B
         j = (np.minimum(T.astype(int), self.bins - 1) + self.bins * np.arange(S)[:, None]).ravel()
         acc = np.zeros((S, self.bins, 7))
         acc[0] = self.acc
-        for col, x in ((0, dtp[..., None]), (1, fdt), (4, udt)):
-            for i in range(x.shape[-1]):
-                acc[:, :, col + i] += np.bincount(j, x[..., i].ravel(),
+        for col, x in ((0, dtp[None]), (1, fdt), (4, udt)):
+            for i, xi in enumerate(x):
+                acc[:, :, col + i] += np.bincount(j, xi.ravel(),
                                                   minlength=S * self.bins).reshape(S, self.bins)
         last = dcm_from_quat(np.stack([c[np.arange(S), lens - 1] for c in q], axis=-1))
         B = np.concatenate([(self.B @ last[0])[None], last[1:]])
