@@ -95,8 +95,9 @@ def _qmul_into(a, b, out, tmp):
     mul(ay, by, out=tmp); ow -= tmp; mul(az, bz, out=tmp); ow -= tmp      # noqa: E702
 
 
-def _qrot(q, v):
-    """Rotate vectors v (..., 3) by quaternion components q: returns (..., 3)."""
+def rotate_vectors(q, v):
+    """Rotate vectors v (..., 3) by unit quaternion components q = (x, y, z, w), each of
+    v's shape without its last axis: returns a new (..., 3) array."""
     out = np.moveaxis(np.array(v, dtype=float), -1, 0)
     _qrot_c(q, out)
     return np.moveaxis(out, 0, -1)
@@ -167,9 +168,16 @@ def _scan(q, v=None):
 
 @functools.lru_cache(maxsize=64)
 def _near_sqrt_divisor(L: int) -> int:
-    """The divisor d of L (1 < d < L) with d^2 nearest L; 0 when L is prime."""
-    d = min(range(2, L), key=lambda d: (L % d != 0, abs(d * d - L)))
-    return d if L % d == 0 else 0
+    """The divisor d of L (1 < d < L) with d^2 nearest L, the smaller on a tie; 0 when L is
+    prime. Divisors come in pairs (d, L / d) with d <= sqrt(L): O(sqrt L) steps."""
+    best = None
+    for d in range(2, math.isqrt(L) + 1):
+        if L % d == 0:
+            for e in (d, L // d):
+                k = (abs(e * e - L), e)
+                if best is None or k < best:
+                    best = k
+    return 0 if best is None else best[1]
 
 
 def _two_level_scan(q, m2: int):
@@ -198,6 +206,21 @@ def prefix_rotations(dt, w: np.ndarray) -> tuple:
     q = _qexp(w * np.asarray(dt)[..., None])
     _scan(q)
     return q
+
+
+def prefix_rotations_components(rx, ry, rz) -> tuple:
+    """:func:`prefix_rotations` of rotation increments given component-major: ``rx, ry, rz``
+    (equal C-contiguous shapes (S, L, ...), rad; overwritten) are exp'd and their inclusive
+    prefix products along axis 1 returned as quaternion components (x, y, z, w)."""
+    q = _qexp_c(rx, ry, rz)
+    _scan(q)
+    return q
+
+
+def rotate_components(q, v) -> None:
+    """Rotate component vectors ``v = (vx, vy, vz)`` by unit quaternion components
+    ``q = (x, y, z, w)`` of the same shape, in place."""
+    _qrot_c(q, v)
 
 
 #: Elements per sample position in one piece of :func:`preintegrate`: the scratch arrays
@@ -373,7 +396,7 @@ def start_frame_increments(dt: np.ndarray, w: np.ndarray, f: np.ndarray) -> np.n
     """
     q = prefix_rotations(dt[None, :, None], w[None])
     q = tuple(c[0] for c in q)
-    return _qrot(q, f) * dt[:, None, None]
+    return rotate_vectors(q, f) * dt[:, None, None]
 
 
 def open_loop_velocity(dt: np.ndarray, w: np.ndarray, f: np.ndarray, C0: np.ndarray,

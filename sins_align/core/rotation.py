@@ -55,7 +55,9 @@ def so3_exp_entries(x, y, z) -> tuple:
     if isinstance(x, float):
         th2 = x * x + y * y + z * z
         if th2 < 1e-4:
-            a, b = _exp_series(th2)
+            # _exp_series written out for a float: the same operations as horner's
+            a = ((th2 * (-1.0 / 5040.0) + 1.0 / 120.0) * th2 + (-1.0 / 6.0)) * th2 + 1.0
+            b = ((th2 * (-1.0 / 40320.0) + 1.0 / 720.0) * th2 + (-1.0 / 24.0)) * th2 + 0.5
         else:
             th = math.sqrt(th2)
             a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2

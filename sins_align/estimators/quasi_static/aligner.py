@@ -57,6 +57,8 @@ REJECT_REASONS = (
 )
 
 FAST_MAX_BLOCK = 65536
+#: samples _clean_run checks at once (arrays of 64 kB: below malloc's mmap threshold)
+CLEAN_PIECE = 8192
 #: samples in a row that must agree on a new time line before it is taken (a time jump)
 JUMP_CONFIRM = 3
 #: an interval above this multiple of the nominal one means samples are missing
@@ -297,19 +299,27 @@ class Aligner(EventSource, AttitudeReadout):
                 or self.units_suspect or self._t_prev_raw != self.t_last
                 or len(t) - k < FAST_MIN_BLOCK):
             return k
-        tt = t[k:k + FAST_MAX_BLOCK]
-        dts = np.diff(tt, prepend=self.t_last)
-        nom = self.nominal_dt
-        fn = np.linalg.norm(f[k:k + len(tt)], axis=1)
-        wn = np.linalg.norm(w[k:k + len(tt)], axis=1)
-        ok = (np.isfinite(tt) & np.isfinite(w[k:k + len(tt)]).all(1)
-              & np.isfinite(f[k:k + len(tt)]).all(1)
-              & (dts >= c.min_dt_ratio * nom) & (dts <= c.gap_ratio * nom) & (dts <= c.max_gap)
-              & (np.abs(dts - nom) <= 0.4 * nom)
-              & (fn >= 0.25 * self.g) & (np.abs(fn - self.g) <= c.specific_force_tolerance * self.g)
-              & (wn <= c.max_angular_rate))
-        m = len(tt) if ok.all() else int(np.argmin(ok))
-        return k + m
+        nom, g = self.nominal_dt, self.g
+        end, prev = min(len(t), k + FAST_MAX_BLOCK), self.t_last
+        # piece by piece (small temporaries: no fresh memory to fault in), up to the first
+        # sample a check would take out
+        for a in range(k, end, CLEAN_PIECE):
+            b = min(end, a + CLEAN_PIECE)
+            tt = t[a:b]
+            dts = np.diff(tt, prepend=prev)
+            # the norms as np.linalg.norm sums them, by columns (a third of its time); a NaN
+            # or an infinity in a sample makes its norm fail the range checks below
+            fn, wn = (np.sqrt(x[:, 0] * x[:, 0] + x[:, 1] * x[:, 1] + x[:, 2] * x[:, 2])
+                      for x in (f[a:b], w[a:b]))
+            ok = (np.isfinite(tt)
+                  & (dts >= c.min_dt_ratio * nom) & (dts <= c.gap_ratio * nom)
+                  & (dts <= c.max_gap) & (np.abs(dts - nom) <= 0.4 * nom)
+                  & (fn >= 0.25 * g) & (np.abs(fn - g) <= c.specific_force_tolerance * g)
+                  & (wn <= c.max_angular_rate))
+            if not ok.all():
+                return a + int(np.argmin(ok))
+            prev = tt[-1]
+        return end
 
     def _accept_block(self, t, w, f) -> int:
         """Clean samples through the fast path: all of them, or those before the first

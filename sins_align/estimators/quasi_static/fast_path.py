@@ -121,12 +121,12 @@ class FastPath:
         """Samples cut into update intervals (``lengths``): pre-integration of all of them,
         then the intervals one by one (mechanization in closed form, update when due).
 
-        In the loop the state is component-major, the attitude transposed:
+        A single run (the Aligner) takes :meth:`_one_run_intervals`, on floats. For N runs the
+        state in the loop is component-major, the attitude transposed:
         ``Ct[k, i, n] = C[i, k, n]`` and ``v[:, n]`` for run n, so that each product of
-        per-run 3x3 matrices is one einsum over contiguous rows of the N runs (a plain
-        matrix product for one run), and each product with a matrix shared by all runs is
-        one GEMM. Every array of N runs is written into a reused scratch array (no page
-        faults per update).
+        per-run 3x3 matrices is one einsum over contiguous rows of the N runs, and each
+        product with a matrix shared by all runs is one GEMM. Every array of N runs is
+        written into a reused scratch array (no page faults per update).
         """
         period = self._period()
         uniform = np.ndim(dt) == 0
@@ -134,6 +134,9 @@ class FastPath:
         B, segT, sdt = preintegrate(dt, w, f, lengths, self._W, self.fine, sc)
         if uniform:
             self._prefetch_schedule(lengths, dt)
+        if self.n == 1:
+            self._one_run_intervals(dt, B[..., 0], segT, sdt, lengths, track_B, offset)
+            return
         # P = C0 B[i] row by row: P[k] = C0 times column k of B[i] (Qm, then A0 Aa Ab, then
         # V0 Va Vb); the velocity increment sum_k M_k C0 A_k is G @ P[3:6] as (9, N) rows
         G = self._Gv
@@ -190,10 +193,7 @@ class FastPath:
                 self._innovate(v, Kg, Sinv, out=x)
             self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
             # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
-            if n == 1:                                        # nine floats
-                R = np.array(so3_exp_entries(*x[:3, 0].tolist()))
-            else:
-                R = np.stack(so3_exp_entries(x[0], x[1], x[2]), out=scratch_array(sc, "R", (9, n)))
+            R = np.stack(so3_exp_entries(x[0], x[1], x[2]), out=scratch_array(sc, "R", (9, n)))
             times_rows(R.reshape(3, 3, n), X, Ct)
             if self.fine:                       # the velocity turns with the attitude
                 v[...] = np.einsum("ijn,jn->in", R.reshape(3, 3, n), v)
@@ -207,6 +207,90 @@ class FastPath:
         self.v_sum = vs.T.copy()
         if track_B:
             self._B = np.ascontiguousarray(Bt.transpose(2, 1, 0))
+
+    def _one_run_intervals(self, dt, B, segT, sdt, lengths, track_B: bool, offset):
+        """The interval loop of :meth:`_advance_segments` for a single run (the Aligner's
+        case) on Python floats: the attitude is nine numbers, the velocity and its sum three
+        each, and every interval's sums come from lists made in one go. The same steps as
+        the loop over N runs (C <- R E C Q, v += sum_k M_k C A_k + g T, the update, the
+        feedback), but a 3x3 product in floats costs half of one numpy call and nothing is
+        allocated. ``B``: (S, 3, K), the sums of :func:`preintegrate` of the one run."""
+        period = self._period()
+        uniform = np.ndim(dt) == 0
+        fine = self.fine
+        H = measurement_matrix("constant")
+        ends = np.cumsum(lengths).tolist()
+        S = len(lengths)
+        Qs = B[:, :, :3].reshape(S, 9).tolist()         # body rotation over the interval
+        As = B[:, :, 3:6].reshape(S, 9).tolist()        # columns A0, Aa, Ab (m/s)
+        Vs = B[:, :, 6:9].reshape(S, 9).tolist() if fine else None   # V0, Va, Vb (m)
+        U, U2 = self._Ue.ravel().tolist(), self._Ue2.ravel().tolist()
+        C = self.C[0].ravel().tolist()
+        v0, v1, v2 = self.v[0].tolist()
+        s0, s1, s2 = self.v_sum[0].tolist()
+        g0, g1, g2 = self.g_n.tolist()
+        Bt = self._B[0].ravel().tolist() if track_B else None
+        z, x = np.empty((3, 1)), np.empty((6, 1))
+        earth = {}                                   # uniform: E of each length m
+        for i, m in enumerate(lengths.tolist()):
+            if uniform:
+                Ti, dti = m * dt, dt
+                E = earth.get(m) or earth.setdefault(m, self._earth_rot(m, dt).ravel().tolist())
+                cg = dt * dt * m * (m + 1) / 2.0
+            else:
+                Ti, dti = float(segT[i]), float(dt[ends[i] - 1])
+                E = so3_exp(-self.w_ie * Ti).ravel().tolist()
+                cg = float(sdt[i])
+            if track_B:
+                Bt = _mm3(Bt, Qs[i])
+            if fine:
+                a0, a1, a2 = _increment(_mm3(C, Vs[i]), U, U2)
+                s0, s1, s2 = s0 + v0 * Ti, s1 + v1 * Ti, s2 + v2 * Ti
+                s0, s1, s2 = s0 + a0 + g0 * cg, s1 + a1 + g1 * cg, s2 + a2 + g2 * cg
+            a0, a1, a2 = _increment(_mm3(C, As[i]), U, U2)
+            v0, v1, v2 = v0 + a0 + g0 * Ti, v1 + a1 + g1 * Ti, v2 + a2 + g2 * Ti
+            X = _mm3(E, _mm3(C, Qs[i]))
+            self.t_int += Ti
+            self.t_acc += Ti
+            jumps = (lambda: self._disc_m(m, dt)) if uniform else (
+                lambda: self._disc_var(part(dt, ends[i] - m, ends[i])))
+            Hu, scale = self._update_due(self.t_acc, period, dti, H, uniform)
+            if Hu is None:                          # partial interval: no update yet
+                self._cov_block(m, dt, None, 0.0, jumps)
+                C = X
+                continue
+            before = self.P, self.S, self._node
+            Kg, Sinv = self._cov_block(m, dt, Hu, scale, jumps)
+            if fine:
+                t = self.t_acc
+                z0, z1, z2 = s0 / t, s1 / t, s2 / t
+                s0 = s1 = s2 = 0.0
+            else:
+                z0, z1, z2 = v0, v1, v2
+            xs = self._innovate_one(z0, z1, z2, Kg, Sinv)
+            if xs is None:                  # gated, absorbed or re-inflated: the array path
+                z[0, 0], z[1, 0], z[2, 0] = z0, z1, z2
+                self._innovate(z, Kg, Sinv, out=x)
+                self._settle(lambda: self._coast(before, m, dt, jumps), Hu, scale, x)
+                xs = x[:, 0].tolist()
+            x0, x1, x2, x3, x4, x5 = xs
+            # feedback (models.apply_correction, constant model): C <- exp(phi x) C, v -= dv
+            R = so3_exp_entries(x0, x1, x2)
+            C = _mm3(R, X)
+            if fine:                       # the velocity turns with the attitude
+                v0, v1, v2 = (R[0] * v0 + R[1] * v1 + R[2] * v2,
+                              R[3] * v0 + R[4] * v1 + R[5] * v2,
+                              R[6] * v0 + R[7] * v1 + R[8] * v2)
+            v0, v1, v2 = v0 - x3, v1 - x4, v2 - x5
+            self.t_acc = 0.0
+            if self.on_update is not None and offset is not None:
+                self.C, self.v = np.array(C).reshape(1, 3, 3), np.array([[v0, v1, v2]])
+                self.on_update(offset + ends[i] - 1)
+        self.C = np.array(C).reshape(1, 3, 3)
+        self.v = np.array([[v0, v1, v2]])
+        self.v_sum = np.array([[s0, s1, s2]])
+        if track_B:
+            self._B = np.array(Bt).reshape(1, 3, 3)
 
     def _coast(self, before, m: int, dt, jumps):
         """P and S propagated over the interval from ``before`` (P, S, cache node) with no
@@ -261,7 +345,7 @@ class FastPath:
             plan.append((m, *self._update_due(t_acc, period, dt, H0)))
             if plan[-1][1] is not None:
                 t_acc = 0.0
-        keys = [(m, dt, sc, None if H is None else H.tobytes()) for m, H, sc in plan]
+        keys = [(m, dt, sc, self._h_bytes(H)) for m, H, sc in plan]
         P, S, i = self.P[0], self.S[0], 0
         while i < len(keys):                        # the part of the chain already built
             hit = node.get(keys[i])
@@ -326,7 +410,7 @@ class FastPath:
             node = self._node if self._node is not None else self._schedule_root()
         self._node = None                            # P and S are about to move on
         if node is not None:
-            key = (m, dt, scale, None if H is None else H.tobytes())
+            key = (m, dt, scale, self._h_bytes(H))
             hit = node.get(key)
             if hit is not None:
                 self.P, self.S, K, Sinv, self._node = hit
@@ -343,6 +427,19 @@ class FastPath:
             self._node = {}
             node[key] = (self.P, self.S, K, Sinv, self._node)
         return K, Sinv
+
+    def _h_bytes(self, H):
+        """H's bytes (the schedule keys' part for the measurement; None for none), kept by
+        the array's identity: the loop asks for the same few matrices at every update. The
+        memo holds the arrays themselves (so no identity is reused) and at most 64 of them."""
+        if H is None:
+            return None
+        hit = self._h_memo.get(id(H))
+        if hit is None:
+            if len(self._h_memo) >= 64:
+                self._h_memo.clear()
+            hit = self._h_memo[id(H)] = (H, H.tobytes())
+        return hit[1]
 
     def _schedule_root(self):
         """The cache chain of the current pass (None when the covariance is per run)."""
@@ -374,20 +471,35 @@ class FastPath:
 def rows_times(Ct, M, out):
     """``out[k, i, n] = sum_j Ct[j, i, n] M[j, k, n]``: C M for each run n, component-major
     with C transposed (``Ct[j, i, n] = C[i, j, n]``), so out is (C M) transposed. One einsum
-    over the runs; for a single run a plain matrix product (half the call overhead)."""
-    if out.shape[-1] == 1:
-        np.matmul(M[..., 0].T, Ct[..., 0], out=out[..., 0])
-    else:
-        np.einsum("jin,jkn->kin", Ct, M, out=out)
+    over the runs (a single run takes :meth:`FastPath._one_run_intervals` instead)."""
+    np.einsum("jin,jkn->kin", Ct, M, out=out)
 
 
 def times_rows(R, Xt, out):
     """``out[k, r, n] = sum_j R[r, j, n] Xt[k, j, n]``: R X for each run n, with X and the
     result transposed as in :func:`rows_times`."""
-    if out.shape[-1] == 1:
-        np.matmul(Xt[..., 0], R[..., 0].T, out=out[..., 0])
-    else:
-        np.einsum("rjn,kjn->krn", R, Xt, out=out)
+    np.einsum("rjn,kjn->krn", R, Xt, out=out)
+
+
+def _mm3(a, b) -> list:
+    """The product of two 3x3 matrices given as nine floats row by row (lists or tuples)."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return [a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
+            a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
+            a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8]
+
+
+def _increment(CA, U, U2) -> tuple:
+    """``sum_k M_k y_k`` with M = I, U, U2 and y_k column k of CA (nine floats row by row;
+    U, U2 the same): the velocity (sum) increment of an interval, C times the sums A_k
+    (or V_k) turned by the Earth-rate polynomial (:func:`sins_align.core.preint.earth_poly`)."""
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = CA
+    u0, u1, u2, u3, u4, u5, u6, u7, u8 = U
+    w0, w1, w2, w3, w4, w5, w6, w7, w8 = U2
+    return (c0 + u0 * c1 + u1 * c4 + u2 * c7 + w0 * c2 + w1 * c5 + w2 * c8,
+            c3 + u3 * c1 + u4 * c4 + u5 * c7 + w3 * c2 + w4 * c5 + w5 * c8,
+            c6 + u6 * c1 + u7 * c4 + u8 * c7 + w6 * c2 + w7 * c5 + w8 * c8)
 
 
 def part(dt, a: int, b: int):

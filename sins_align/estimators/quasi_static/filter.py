@@ -77,6 +77,7 @@ class AlignmentFilter(FastPath, Backtrack):
         self._Gv = np.stack([np.eye(3), self._Ue, self._Ue2]).transpose(1, 0, 2).reshape(3, 9)
         self._cache: dict = {}
         self._scratch: dict = {}       # the fast path's large temporaries, reused (scratch_array)
+        self._h_memo: dict = {}        # id(H) -> (H, its bytes) (FastPath._h_bytes)
         self.on_update = None          # fast path: called with the sample index after updates
         self._rerun = False
         self._cfg_key = (c.model, self.w_ie.tobytes(), self.g_n.tobytes(), self.Qc.tobytes(),
@@ -307,24 +308,14 @@ class AlignmentFilter(FastPath, Backtrack):
         if K.shape[0] == 1:                 # one gain for all runs: plain 2-D products
             x = np.matmul(K[0], z, out=out)
             if z.shape[1] == 1:             # one run (the node, replay): scalar arithmetic
-                z0, z1, z2 = z.ravel().tolist()
-                (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = Sinv[0].tolist()
-                r = (z0 * (s00 * z0 + s01 * z1 + s02 * z2)
-                     + z1 * (s10 * z0 + s11 * z1 + s12 * z2)
-                     + z2 * (s20 * z0 + s21 * z1 + s22 * z2)) / 3.0
-                m = float(self.nis_mean[0])
+                r = _nis_one(*z.ravel().tolist(), Sinv[0])
+                if self._ordinary_one(r, a):
+                    return x
                 if self.fine:
-                    if 3.0 * r <= c.gate_nis:
-                        self.nis_mean = np.array([m + a * (r - m)])
-                        if self.gate_start[0] == self.gate_start[0]:      # not NaN
-                            self.gate_start = np.full(1, np.nan)
-                        return x
                     r = np.array([r])
                 else:
-                    m += a * (r - m)
-                    self.nis_mean = np.array([m])
-                    if m <= c.reinflate_nis:
-                        return x
+                    m = float(self.nis_mean[0])
+                    self.nis_mean = np.array([m + a * (r - m)])
                     r = None                # already in the mean
             else:
                 r = _THIRDS @ ((Sinv[0] @ z) * z)
@@ -342,6 +333,37 @@ class AlignmentFilter(FastPath, Backtrack):
             if bad.any():
                 self._reinflate(bad)
         return x
+
+    def _ordinary_one(self, r: float, a: float) -> bool:
+        """One run: an ordinary update (coarse pass: the running NIS mean stays within
+        ``reinflate_nis``; fine pass: the NIS ``3 r`` within the gate) gets its running mean
+        (weight ``a``) and True; any other gets False, nothing changed."""
+        c = self.config
+        m = float(self.nis_mean[0])
+        if self.fine:
+            if not 3.0 * r <= c.gate_nis:
+                return False
+            self.nis_mean = np.array([m + a * (r - m)])
+            if self.gate_start[0] == self.gate_start[0]:      # not NaN
+                self.gate_start = np.full(1, np.nan)
+            return True
+        m += a * (r - m)
+        if not m <= c.reinflate_nis:
+            return False
+        self.nis_mean = np.array([m])
+        return True
+
+    def _innovate_one(self, z0: float, z1: float, z2: float, K, Sinv):
+        """:meth:`_innovate` for one run and one gain, on floats (the fast path's single
+        run): for an ordinary update (:meth:`_ordinary_one`), its bookkeeping done and the
+        six floats of ``x = K z`` returned (nothing for :meth:`_settle` to do); None for any
+        other, with nothing changed (the caller then takes :meth:`_innovate`)."""
+        n = self.updates + 1
+        if not self._ordinary_one(_nis_one(z0, z1, z2, Sinv[0]), 0.1 if n > 10 else 1.0 / n):
+            return None
+        self.updates = n
+        self._gated = self._absorb = self._inflate = None
+        return [k0 * z0 + k1 * z1 + k2 * z2 for k0, k1, k2 in K[0].tolist()]
 
     def _gate(self, r, a: float, x, z):
         """Fine-pass gating (chi-square on the NIS, robot_localization style).
@@ -426,6 +448,14 @@ class AlignmentFilter(FastPath, Backtrack):
         self.gate_start = np.where(mask, np.nan, self.gate_start)
         self.last_reinflate = np.where(mask, self.t_int, self.last_reinflate)
         self.reinflations += mask
+
+
+def _nis_one(z0: float, z1: float, z2: float, Sinv: np.ndarray) -> float:
+    """NIS per degree of freedom ``z^T Sinv z / 3`` of one innovation (floats; Sinv (3, 3))."""
+    (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = Sinv.tolist()
+    return (z0 * (s00 * z0 + s01 * z1 + s02 * z2)
+            + z1 * (s10 * z0 + s11 * z1 + s12 * z2)
+            + z2 * (s20 * z0 + s21 * z1 + s22 * z2)) / 3.0
 
 
 def _where_runs(mask: np.ndarray, a, b) -> np.ndarray:
