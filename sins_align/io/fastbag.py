@@ -535,11 +535,14 @@ def open_fast(path: str | os.PathLike) -> FastBag | None:
     except Exception:  # noqa: BLE001 - any doubt: rosbags opens it and reports
         return None
     bag = FastBag(p, storage, file, conns)
+    return _opened(bag, bag._open_mcap if storage == "mcap" else bag._open_sqlite)
+
+
+def _opened(bag: FastBag, open_storage) -> FastBag | None:
+    """``bag`` once ``open_storage()`` has read its file and every definition is the
+    standard one; None (and closed) on anything unusual or odd."""
     try:
-        if storage == "mcap":
-            bag._open_mcap()
-        else:
-            bag._open_sqlite()
+        open_storage()
         for msgtype, enc, text in bag.definitions:
             check_definition(msgtype, enc, text)
     except Exception:  # noqa: BLE001 - Unusual, or anything odd
@@ -554,16 +557,13 @@ def _open_bare_mcap(p: Path) -> FastBag | None:
     indexes."""
     bag = FastBag(p, "mcap", p, [])
     bag.bare = True
-    try:
+
+    def open_storage():
         bag._open_mcap()
         counts = bag._counts if bag._counts is not None else bag._chunk_counts
         if any(enc != "cdr" for _, _, _, enc in bag._channel_list):
             raise Unusual("a channel that is not cdr")
         bag.connections = [Connection(cid, topic, name, int(counts.get(cid, 0)), "cdr", [], "")
                            for cid, topic, name, _ in bag._channel_list]
-        for msgtype, enc, text in bag.definitions:
-            check_definition(msgtype, enc, text)
-    except Exception:  # noqa: BLE001 - Unusual, or anything odd
-        bag.close()
-        return None
-    return bag
+
+    return _opened(bag, open_storage)

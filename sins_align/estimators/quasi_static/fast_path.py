@@ -175,13 +175,9 @@ class FastPath:
                 vs += self._g_col * (dt * dt * m * (m + 1) / 2.0 if uniform else float(sdt[i]))
             v += np.matmul(G, P_A, out=inc)
             v += gT
-            self.t_int += Ti
-            self.t_acc += Ti
-            jumps = (lambda: self._disc_m(m, dt)) if uniform else (
-                lambda: self._disc_var(part(dt, ends[i] - m, ends[i])))
-            Hu, scale = self._update_due(self.t_acc, period, dti, H, uniform)
+            Hu, scale, jumps = self._interval_end(Ti, m, dt, uniform, part, ends[i], period,
+                                                  dti, H)
             if Hu is None:                          # partial interval: no update yet
-                self._cov_block(m, dt, None, 0.0, jumps)
                 Ct, X = X, Ct
                 continue
             before = self.P, self.S, self._node
@@ -250,13 +246,9 @@ class FastPath:
             a0, a1, a2 = _increment(_mm3(C, As[i]), U, U2)
             v0, v1, v2 = v0 + a0 + g0 * Ti, v1 + a1 + g1 * Ti, v2 + a2 + g2 * Ti
             X = _mm3(E, _mm3(C, Qs[i]))
-            self.t_int += Ti
-            self.t_acc += Ti
-            jumps = (lambda: self._disc_m(m, dt)) if uniform else (
-                lambda: self._disc_var(part(dt, ends[i] - m, ends[i])))
-            Hu, scale = self._update_due(self.t_acc, period, dti, H, uniform)
+            Hu, scale, jumps = self._interval_end(Ti, m, dt, uniform, part, ends[i], period,
+                                                  dti, H)
             if Hu is None:                          # partial interval: no update yet
-                self._cov_block(m, dt, None, 0.0, jumps)
                 C = X
                 continue
             before = self.P, self.S, self._node
@@ -298,6 +290,20 @@ class FastPath:
         self.P, self.S, self._node = before
         self._cov_block(m, dt, None, 0.0, jumps)
         return self.P, self.S
+
+    def _interval_end(self, Ti, m, dt, uniform, part, end, period, dti, H):
+        """The end of an interval of m samples (the last at index ``end``) of Ti s: the
+        clocks advance; returns (H of the update due, its noise scale, the interval's
+        covariance jumps), H None for a partial interval, whose covariance jump is then
+        applied here."""
+        self.t_int += Ti
+        self.t_acc += Ti
+        jumps = (lambda: self._disc_m(m, dt)) if uniform else (
+            lambda: self._disc_var(part(dt, end - m, end)))
+        Hu, scale = self._update_due(self.t_acc, period, dti, H, uniform)
+        if Hu is None:
+            self._cov_block(m, dt, None, 0.0, jumps)
+        return Hu, scale, jumps
 
     def _update_due(self, t_acc: float, period: float, dt: float, H, cache: bool = True):
         """(H, R scale) of the fast path's update after ``t_acc`` s of the current interval
