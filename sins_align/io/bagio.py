@@ -694,6 +694,41 @@ class ChunkIndex:
         return {c: (y - o - 15) // 16 for (o, c), y in zip(oc, bounds[1:]) if y - o - 15}
 
 
+def mcap_summary(f, after: int = 8) -> tuple[int, bytes]:
+    """(size, summary section) of the MCAP file open as ``f`` (binary); the section must
+    start beyond byte ``after``. McapUnusual without the magic, the footer or a summary."""
+    size = f.seek(0, 2)
+    f.seek(0)
+    if size < 8 + 37 or f.read(8) != MCAP_MAGIC:
+        raise McapUnusual("not an MCAP file")
+    f.seek(size - 37)
+    foot = f.read(37)
+    if foot[:9] != bytes([_OP_FOOTER, 20, 0, 0, 0, 0, 0, 0, 0]) or foot[-8:] != MCAP_MAGIC:
+        raise McapUnusual("invalid MCAP footer")
+    (start,) = struct.unpack_from("<Q", foot, 9)
+    if not after < start <= size - 37:
+        raise McapUnusual("no summary section")
+    f.seek(start)
+    return size, f.read(size - 37 - start)
+
+
+def mcap_summary_records(data: bytes):
+    """(opcode, body) of each record of a summary section, up to its footer or summary
+    offsets (a generator; McapUnusual on a truncated record)."""
+    pos = 0
+    while pos < len(data):
+        if pos + 9 > len(data):
+            raise McapUnusual("truncated summary")
+        op = data[pos]
+        if op in (_OP_FOOTER, _OP_SUMMARY_OFFSET):
+            return
+        (n,) = struct.unpack_from("<Q", data, pos + 1)
+        if pos + 9 + n > len(data):
+            raise McapUnusual("truncated summary record")
+        yield op, data[pos + 9:pos + 9 + n]
+        pos += 9 + n
+
+
 class McapTopicReader:
     """Reads the messages of some channels of rosbag2 MCAP files, chunk by chunk, with numpy.
 
@@ -775,34 +810,9 @@ class McapTopicReader:
     def _plan(path: Path, ids: frozenset[int]) -> list[ChunkIndex]:
         """The chunks holding the channels, in reading order (checked not to overlap)."""
         with open(path, "rb") as f:
-            size = f.seek(0, 2)
-            f.seek(0)
-            if size < 8 + 37 or f.read(8) != MCAP_MAGIC:
-                raise McapUnusual("not an MCAP file")
-            f.seek(size - 37)
-            foot = f.read(37)
-            if foot[:9] != bytes([_OP_FOOTER, 20, 0, 0, 0, 0, 0, 0, 0]) or \
-                    foot[-8:] != MCAP_MAGIC:
-                raise McapUnusual("invalid MCAP footer")
-            (summary_start,) = struct.unpack_from("<Q", foot, 9)
-            if not 8 < summary_start <= size - 37:
-                raise McapUnusual("no summary section")
-            f.seek(summary_start)
-            data = f.read(size - 37 - summary_start)
-        chunks: list[ChunkIndex] = []
-        pos = 0
-        while pos < len(data):
-            if pos + 9 > len(data):
-                raise McapUnusual("truncated summary")
-            op = data[pos]
-            if op in (_OP_FOOTER, _OP_SUMMARY_OFFSET):
-                break
-            (n,) = struct.unpack_from("<Q", data, pos + 1)
-            if pos + 9 + n > len(data):
-                raise McapUnusual("truncated summary record")
-            if op == _OP_CHUNK_INDEX:
-                chunks.append(ChunkIndex(data[pos + 9:pos + 9 + n]))
-            pos += 9 + n
+            size, data = mcap_summary(f)
+        chunks = [ChunkIndex(body) for op, body in mcap_summary_records(data)
+                  if op == _OP_CHUNK_INDEX]
         if not chunks:
             raise McapUnusual("no chunk index")
         used = sorted((c for c in chunks if any(c.counts().get(i, 0) for i in ids)),

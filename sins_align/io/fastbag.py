@@ -302,37 +302,20 @@ class FastBag:
 
     # -- storage -------------------------------------------------------------------------
     def _open_mcap(self):
-        from sins_align.io.bagio import MCAP_MAGIC, ChunkIndex
+        from sins_align.io.bagio import ChunkIndex, mcap_summary, mcap_summary_records
         with open(self.file, "rb") as f:
-            size = f.seek(0, 2)
+            _, data = mcap_summary(f, after=25)
             f.seek(0)
             head = f.read(8 + 9 + 4 + 4)
-            if len(head) < 25 or head[:8] != MCAP_MAGIC or head[8] != 0x01:
+            if head[8] != 0x01:
                 raise Unusual("not an MCAP file with a header")
             (k,) = struct.unpack_from("<I", head, 17)
             f.seek(21)
             if f.read(k) != b"ros2":
                 raise Unusual("profile is not ros2")
-            f.seek(size - 37)
-            foot = f.read(37)
-            if foot[:9] != bytes([0x02, 20, 0, 0, 0, 0, 0, 0, 0]) or foot[-8:] != MCAP_MAGIC:
-                raise Unusual("invalid MCAP footer")
-            (start,) = struct.unpack_from("<Q", foot, 9)
-            if not 25 < start <= size - 37:
-                raise Unusual("no summary section")
-            f.seek(start)
-            data = f.read(size - 37 - start)
         schemas: dict[int, tuple[str, str, str]] = {}
-        pos = 0
         try:
-            while pos < len(data):
-                op = data[pos]
-                if op in (0x02, 0x0E):
-                    break
-                (n,) = struct.unpack_from("<Q", data, pos + 1)
-                body = data[pos + 9:pos + 9 + n]
-                if len(body) != n:
-                    raise Unusual("truncated summary record")
+            for op, body in mcap_summary_records(data):
                 if op == 0x03:
                     (sid,) = struct.unpack_from("<H", body, 0)
                     name, p = _string(body, 2)
@@ -358,7 +341,6 @@ class FastBag:
                 elif op == 0x08 and self.bare:
                     for cid, c in ChunkIndex(body).counts().items():
                         self._chunk_counts[cid] = self._chunk_counts.get(cid, 0) + c
-                pos += 9 + n
         except (IndexError, struct.error, UnicodeDecodeError, KeyError) as e:
             raise Unusual(f"malformed summary: {e}") from None
         if not schemas:
