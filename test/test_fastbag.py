@@ -8,7 +8,6 @@ corrupt database, stamps out of order) goes to rosbags, whole or from where it w
 """
 from __future__ import annotations
 
-import json
 import sqlite3
 
 import numpy as np
@@ -21,7 +20,7 @@ from sins_align.io.fastbag import FastBag, Unusual, check_definition, open_fast
 from sins_align.estimators.quasi_static.aligner import AlignConfig
 from sins_align.tools import replay
 
-from test_mcap_fast import IMU, QUAT, imu_raw, truth_raw
+from test_mcap_fast import IMU, QUAT, assert_replay_equals_rosbags, imu_raw, truth_raw
 
 NS = 10_000_000
 
@@ -117,14 +116,7 @@ def test_replay_of_sqlite3_bag_equals_rosbags_reading(tmp_path):
     bag = tmp_path / "sim"
     assert simulate.main(["--latitude", "34", "--duration", "70", "--rate", "100",
                           "--sway", "car", "--storage", "sqlite3", str(bag)]) == 0
-    cfg = AlignConfig(latitude_deg=34.0)
-    s1, sess1 = replay.replay(bag, cfg, progress=False)
-    s2, sess2 = replay.replay(bag, cfg, progress=False, fast_mcap=False)
-    assert sess1.reading == ("sqlite3-bulk", None) and sess2.reading[0] == "rosbags"
-    for s in (s1, s2):
-        s.pop("wall_time_s")
-        s.pop("messages_per_s")
-    assert json.dumps(s1, sort_keys=True) == json.dumps(s2, sort_keys=True)
+    assert_replay_equals_rosbags(bag, "sqlite3-bulk")
 
 
 @pytest.mark.parametrize("case", ["back in time", "tie"])
@@ -374,12 +366,4 @@ def test_bare_mcap_files_open_as_rosbags_opens_them(tmp_path):
             r.close()
         tb, got = fast_read(f, topic)
         assert tb.fallback_reason is None and got == rosbags_messages(f, topic)
-    cfg = AlignConfig(latitude_deg=34.0)
-    f = next(sim.glob("*.mcap"))
-    s1, sess1 = replay.replay(f, cfg, progress=False)
-    s2, sess2 = replay.replay(f, cfg, progress=False, fast_mcap=False)
-    assert sess1.reading == ("mcap-numpy", None) and sess2.reading[0] == "rosbags"
-    for s in (s1, s2):
-        s.pop("wall_time_s")
-        s.pop("messages_per_s")
-    assert json.dumps(s1, sort_keys=True) == json.dumps(s2, sort_keys=True)
+    assert_replay_equals_rosbags(next(sim.glob("*.mcap")), "mcap-numpy")

@@ -358,15 +358,22 @@ def test_replay_summary_from_numpy_mcap_equals_rosbags_reading(tmp_path):
     """The whole replay on the fast reader and on rosbags' reader (both block-fed): the same
     summary, bit for bit."""
     from sins_align.tools import simulate
-    from sins_align.estimators.quasi_static.aligner import AlignConfig
 
     bag = tmp_path / "sim"
     assert simulate.main(["--latitude", "34", "--duration", "70", "--rate", "100",
                           "--sway", "car", str(bag)]) == 0
+    assert_replay_equals_rosbags(bag, "mcap-numpy")
+
+
+def assert_replay_equals_rosbags(path, reading: str) -> None:
+    """replay's summary of ``path`` read the fast way (``reading``) equals rosbags' reading
+    of it, timings aside."""
+    from sins_align.estimators.quasi_static.aligner import AlignConfig
+
     cfg = AlignConfig(latitude_deg=34.0)
-    s1, sess1 = replay.replay(bag, cfg, progress=False)
-    s2, sess2 = replay.replay(bag, cfg, progress=False, fast_mcap=False)
-    assert sess1.reading == ("mcap-numpy", None) and sess2.reading[0] == "rosbags"
+    s1, sess1 = replay.replay(path, cfg, progress=False)
+    s2, sess2 = replay.replay(path, cfg, progress=False, fast_mcap=False)
+    assert sess1.reading == (reading, None) and sess2.reading[0] == "rosbags"
     for s in (s1, s2):
         s.pop("wall_time_s")
         s.pop("messages_per_s")
