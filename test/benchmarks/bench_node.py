@@ -17,6 +17,11 @@ Two phases of the filter are measured:
 - fine: backtrack_time 5 s, so the run contains the backtrack (the buffer re-processed in
   one go, a pause the subscription queue must absorb) and then the fine pass.
 
+A third row per rate, ``floor``, runs the same harness around a minimal rclpy node
+(``--floor``): it takes the serialised Imu with align_node's QoS and EventsExecutor and
+publishes the same bytes back, nothing else. Its µs per message is what rclpy and Fast DDS
+cost on this machine in the same minutes, whatever the callback does.
+
 Usage: ``.venv/bin/python test/benchmarks/bench_node.py [--rates 100 400] [--duration 10]``
 (``make bench`` runs it). Uses its own ROS_DOMAIN_ID (random) on localhost.
 """
@@ -98,8 +103,61 @@ def publisher(rate: float, duration: float) -> None:
     rclpy.try_shutdown()
 
 
+# ------------------------------------------------------------------------------ the floor
+def floor_node() -> None:
+    """Child process: the least an rclpy node can do with align_node's traffic. Takes the
+    serialised Imu (raw, align_node's QoS, EventsExecutor) and publishes the same bytes on
+    ``imu/data``; latches ``alignment/aligned`` once so the harness sees it up; counts
+    ``samples_used`` in diagnostics every second like the node. Stops on SIGINT."""
+    import signal
+
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from rclpy.experimental.events_executor import EventsExecutor
+    from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                           qos_profile_sensor_data)
+    from sensor_msgs.msg import Imu
+    from std_msgs.msg import Bool
+
+    rclpy.init(args=sys.argv)
+    node = rclpy.create_node("bench_align", namespace=NS)
+    depth = 1000
+    qos_in = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                        reliability=qos_profile_sensor_data.reliability,
+                        durability=qos_profile_sensor_data.durability)
+    pub = node.create_publisher(Imu, "imu/data", depth)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    node.create_publisher(Bool, "alignment/aligned", latched).publish(Bool(data=False))
+    diag = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+    count = [0]
+
+    def on_raw(data: bytes) -> None:
+        count[0] += 1
+        pub.publish(data)
+
+    def on_timer() -> None:
+        st = DiagnosticStatus(name="bench_align: alignment",
+                              values=[KeyValue(key="samples_used", value=str(count[0] - 1))])
+        diag.publish(DiagnosticArray(status=[st]))
+
+    node.create_subscription(Imu, "imu/data_raw", on_raw, qos_in, raw=True)
+    node.create_timer(1.0, on_timer)
+    stop = []
+    signal.signal(signal.SIGINT, lambda *_: stop.append(1))
+    ex = EventsExecutor(context=node.context)
+    ex.add_node(node)
+    while not stop:
+        ex.spin_once(timeout_sec=0.1)
+    ex.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
 # ------------------------------------------------------------------------------ one trial
-def trial(rate: float, duration: float, backtrack: float, env: dict) -> dict:
+def trial(rate: float, duration: float, backtrack: float | None, env: dict) -> dict:
+    """One rate through align_node (``backtrack`` s) or, with ``backtrack=None``, through
+    the floor node."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
@@ -135,11 +193,12 @@ def trial(rate: float, duration: float, backtrack: float, env: dict) -> dict:
         while time.monotonic() < end:
             ex.spin_once(timeout_sec=0.01)
 
-    node = subprocess.Popen(
-        [sys.executable, "-m", "sins_align.ros.align_node", "--ros-args", "-r", f"__ns:={NS}",
-         "-r", "__node:=bench_align", "-p", "latitude:=34.0", "-p", f"rate:={rate}",
-         "-p", f"backtrack_time:={backtrack}"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    cmd = ([sys.executable, __file__, "--floor-node"] if backtrack is None else
+           [sys.executable, "-m", "sins_align.ros.align_node", "--ros-args", "-r",
+            f"__ns:={NS}", "-r", "__node:=bench_align", "-p", "latitude:=34.0", "-p",
+            f"rate:={rate}", "-p", f"backtrack_time:={backtrack}"])
+    node = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
     pub = subprocess.Popen([sys.executable, __file__, "--publish", str(rate), str(duration)],
                            env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
@@ -192,10 +251,16 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rates", type=float, nargs="+", default=[100, 400, 1000, 2000])
     ap.add_argument("--duration", type=float, default=10.0, help="s of publishing per trial")
+    ap.add_argument("--no-floor", action="store_true",
+                    help="skip the floor rows (a raw take-and-republish node, no estimator)")
     ap.add_argument("--publish", type=float, nargs=2, help=argparse.SUPPRESS)
+    ap.add_argument("--floor-node", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.publish:
         publisher(*a.publish)
+        return 0
+    if a.floor_node:
+        floor_node()
         return 0
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -206,7 +271,8 @@ def main() -> int:
     print(f"{'phase':<7}{'rate Hz':>8}{'sent':>7}{'used':>7}{'out':>7}{'lost':>6}{'pub Hz':>8}"
           f"{'lag s':>7}{'CPU %':>7}{'µs/msg':>7}{'box %':>7}  result")
     best, worst_us = {}, {}
-    for phase, backtrack in (("coarse", 60.0), ("fine", 5.0)):
+    phases = [("coarse", 60.0), ("fine", 5.0)] + ([] if a.no_floor else [("floor", None)])
+    for phase, backtrack in phases:
         for rate in a.rates:
             r = trial(rate, a.duration, backtrack, env)
             lost = r["sent"] - r["out"]
@@ -222,6 +288,10 @@ def main() -> int:
                   f"{r['box']:>7.0f}  {verdict}",
                   flush=True)
     for phase, us in worst_us.items():
+        if phase == "floor":
+            print(f"rclpy floor (raw take + republish, no estimator) at 2000 Hz: {us:.0f} µs "
+                  f"per message, measured in the same minutes")
+            continue
         print(f"node CPU per message at 2000 Hz, {phase} pass: {us:.0f} µs "
               f"(target <= {TARGET_US_PER_MSG:.0f} µs, no message lost)")
     for phase in ("coarse", "fine"):
