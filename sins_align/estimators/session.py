@@ -127,11 +127,11 @@ class AlignmentSession:
             k = b + 1
         return accepted
 
-    def feed_block_states(self, t: np.ndarray, w: np.ndarray, f: np.ndarray):
+    def feed_block_states(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, want=None):
         """:meth:`feed_block` for an estimator with ``update_states`` (the quasi-static
         Aligner): the same samples and results, and the estimator's outputs after each
         sample (its ``SampleStates``; ``accepted`` marks the samples :meth:`feed` would
-        call accepted)."""
+        call accepted; ``want``: the samples whose outputs are needed, default all)."""
         est = self.estimator
         n = len(t)
         from sins_align.estimators.quasi_static.aligner import SampleStates
@@ -150,7 +150,8 @@ class AlignmentSession:
         for b in back.tolist() + [n]:
             if b > k:
                 self._back_run = 0
-                st = est.update_states(t[k:b], w[k:b], f[k:b])
+                st = est.update_states(t[k:b], w[k:b], f[k:b],
+                                       None if want is None else want[k:b])
                 for name in ("accepted", "dcm", "covariance", "aligned", "started"):
                     getattr(out, name)[k:b] = getattr(st, name)
                 out.used += st.used

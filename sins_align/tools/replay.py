@@ -576,7 +576,7 @@ class ReplaySession:
                 self._feed_refs(int(reach[b - 1] if ahead else reach[a]))
             before = self.al.aligned
             if states:
-                st = self.session.feed_block_states(t[a:b], w[a:b], f[a:b])
+                st = self.session.feed_block_states(t[a:b], w[a:b], f[a:b], due[a:b])
                 accepted = bool(st.accepted.any())
             else:
                 accepted = self.session.feed_block(t[a:b], w[a:b], f[a:b])

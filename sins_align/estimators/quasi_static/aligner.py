@@ -312,7 +312,7 @@ class Aligner(EventSource, AttitudeReadout):
             k += 1
         return n
 
-    def update_states(self, stamp, gyro, accel) -> SampleStates:
+    def update_states(self, stamp, gyro, accel, want=None) -> SampleStates:
         """:meth:`update` on a block, returning the outputs after every sample
         (:class:`SampleStates`): the attitude, the published covariance and the aligned
         flag that reading :attr:`dcm`, :attr:`covariance` and :attr:`aligned` after feeding
@@ -320,15 +320,18 @@ class Aligner(EventSource, AttitudeReadout):
         speed: between two updates the state coasts in closed form
         (:meth:`AlignmentFilter.coast_states`) and the coarse pass's floors are evaluated
         for all samples at once. Runs that the fast path does not take, or whose intervals
-        are not uniform, go one sample at a time."""
+        are not uniform, go one sample at a time. ``want``: (N,) bool, the samples whose
+        outputs are needed (default all; the others' dcm and covariance are left unset)."""
         t, w, f = _sample_arrays(stamp, gyro, accel)
         out = SampleStates.empty(len(t))
+        want = np.ones(len(t), dtype=bool) if want is None else np.asarray(want, dtype=bool)
         k = 0
         while k < len(t):
             j = self._clean_run(t, w, f, k)
             if j - k >= FAST_MIN_BLOCK and uniform_interval(
                     np.diff(t[k:j], prepend=self.t_last)) is not None:
-                used = self._accept_block(t[k:j], w[k:j], f[k:j], states=out, at=k)
+                used = self._accept_block(t[k:j], w[k:j], f[k:j], states=out, at=k,
+                                          want=want)
                 out.used += used
                 k += used
                 if k == j:
@@ -378,7 +381,8 @@ class Aligner(EventSource, AttitudeReadout):
             prev = tt[-1]
         return end
 
-    def _accept_block(self, t, w, f, states: SampleStates | None = None, at: int = 0) -> int:
+    def _accept_block(self, t, w, f, states: SampleStates | None = None, at: int = 0,
+                      want=None) -> int:
         """Clean samples through the fast path: all of them, or those before the first
         units-check window closing that would flag the rates. Returns how many.
         ``states``: filled from ``at`` with the outputs after each sample (uniform
@@ -419,7 +423,8 @@ class Aligner(EventSource, AttitudeReadout):
         self.t_last = float(t[-1])
         self._refresh_aligned()
         if states is not None:
-            self._fill_states(states, at, dts, w, f, snaps, coarse_model, hist)
+            self._fill_states(states, at, dts, w, f, snaps, coarse_model, hist,
+                              np.flatnonzero(want[at:at + len(t)]))
         return len(t)
 
     def _snapshot(self) -> tuple:
@@ -427,17 +432,17 @@ class Aligner(EventSource, AttitudeReadout):
         return (fl.C[0].copy(), fl.P[0], fl.S[0], self._aligned, fl.backtracked)
 
     def _fill_states(self, out: SampleStates, at: int, dts, w, f, snaps: dict, coarse_model,
-                     hist) -> None:
+                     hist, sel: np.ndarray) -> None:
         """The outputs after each sample of a fast block (see :meth:`update_states`) from the
         states after its updates (``snaps``: sample index -> (C, P, S, aligned flag,
         backtracked), -1 before the block): coasted in between, then the published
         covariance's floors (before the backtrack) and the heading rule of
-        :attr:`covariance`."""
+        :attr:`covariance`, for the samples ``sel`` of the block."""
         fl, c = self.filter, self.config
         L = len(dts)
         dt = uniform_interval(dts)
         idx = sorted(snaps)
-        C, Pa = np.empty((L, 3, 3)), np.empty((L, 3, 3))
+        C, Pa = np.empty((len(sel), 3, 3)), np.empty((len(sel), 3, 3))
         # stretches of one model: before and after the backtrack (it changes the noise)
         groups: list[list[int]] = []
         for i in idx:
@@ -454,32 +459,36 @@ class Aligner(EventSource, AttitudeReadout):
             else:
                 model = coarse_model
             st = [snaps[i] for i in grp]
-            C[lo:hi], Pa[lo:hi] = fl.coast_states(
-                model, dts[lo:hi], w[lo:hi], np.array(grp) - lo, np.array([x[0] for x in st]),
-                np.array([x[1] for x in st]), np.array([x[2] for x in st]))
+            a, b = np.searchsorted(sel, [lo, hi])
+            if b > a:
+                C[a:b], Pa[a:b] = fl.coast_states(
+                    model, dts[lo:hi], w[lo:hi], np.array(grp) - lo,
+                    np.array([x[0] for x in st]), np.array([x[1] for x in st]),
+                    np.array([x[2] for x in st]), sel[a:b] - lo)
         g = np.searchsorted(np.array(idx), np.arange(L), side="right") - 1
         flags = np.array([snaps[i][3] for i in idx])[g]
         flags[-1] = self._aligned
         if c.backtrack:
-            coarse = np.array([not snaps[i][4] for i in idx])[g]
-            n = int(np.argmin(coarse)) if not coarse.all() else L     # the coarse samples
+            coarse = np.array([not snaps[i][4] for i in idx])[g][sel]
+            n = int(np.argmin(coarse)) if not coarse.all() else len(sel)  # the coarse ones
             if n:
-                Pa[:n] = self._coarse_floors(C[:n], Pa[:n], f[:n], hist, L)
+                Pa[:n] = self._coarse_floors(C[:n], Pa[:n], sel[:n], f, hist, L)
         if not self.heading_observable:
             Pa[:, 2, :] = 0.0
             Pa[:, :, 2] = 0.0
             Pa[:, 2, 2] = math.pi ** 2
         sl = slice(at, at + L)
-        out.dcm[sl] = C
-        out.covariance[sl] = 0.5 * (Pa + Pa.transpose(0, 2, 1))
+        out.dcm[at + sel] = C
+        out.covariance[at + sel] = 0.5 * (Pa + Pa.transpose(0, 2, 1))
         out.aligned[sl] = flags
         out.accepted[sl] = True
         out.started[sl] = True
 
-    def _coarse_floors(self, C, Pa, f, hist, L: int):
+    def _coarse_floors(self, C, Pa, pos, f, hist, L: int):
         """:attr:`covariance`'s floors before the backtrack, for n samples at once: the
-        attitudes C (n, 3, 3) and covariances Pa (n, 3, 3) after the first n samples (forces
-        f) of a fast block of L, whose buffered forces before it were ``hist``."""
+        attitudes C (n, 3, 3) and covariances Pa (n, 3, 3) after the samples ``pos`` (n,
+        increasing) of a fast block of L (forces f), whose buffered forces before it were
+        ``hist``."""
         c = self.config
         n = len(C)
         up = C[:, 2, :]
@@ -488,16 +497,18 @@ class Aligner(EventSource, AttitudeReadout):
             return np.arccos(np.clip(cos, -1.0, 1.0))
 
         level = np.full(n, c.fine_initial_std_deg[0] * DEG)
-        fm = self._recent.window_mean_forces(1.0, L)[:n]
+        fm = self._recent.window_mean_forces(1.0, L)[pos]
         level = np.maximum(level, angle(np.einsum("ij,ij->i", up, fm) / np.maximum(
             np.linalg.norm(fm, axis=1), 1e-12)))
         if self.nominal_dt is not None and hist is not None:
             k = max(1, int(round(1.0 / self.nominal_dt)))
             n0 = len(hist)
-            cnt = (n0 + np.arange(1, n + 1)) // k              # complete blocks after each
+            cnt = (n0 + pos + 1) // k                          # complete blocks after each
             b0, b1 = max(0, int(cnt[0]) - 10), int(cnt[-1])
             if b1 > b0:
                 allf = np.concatenate([hist[b0 * k:], f[:max(0, b1 * k - n0)]])
+                # (hist may be shorter than b0 k: then the block's own forces start later)
+                allf = allf if b0 * k <= n0 else f[b0 * k - n0:b1 * k - n0]
                 means = allf[:(b1 - b0) * k].reshape(b1 - b0, k, 3).mean(axis=1)
                 cos = (up @ means.T) / np.maximum(np.linalg.norm(means, axis=1), 1e-12)
                 blk = np.arange(b0, b1)

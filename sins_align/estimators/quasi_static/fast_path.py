@@ -31,7 +31,8 @@ class FastPath:
     """Closed-form integration between updates and the cached gain schedule (a part of
     AlignmentFilter; see the module docstring)."""
 
-    def coast_states(self, model, dts: np.ndarray, w: np.ndarray, starts, C0, P0, S0):
+    def coast_states(self, model, dts: np.ndarray, w: np.ndarray, starts, C0, P0, S0,
+                     at: np.ndarray | None = None):
         """The state after every sample of a stretch with no update and no change of the
         model (one run, constant model, uniform intervals): what the per-sample recursion
         gives, in closed form and vectorised over the samples.
@@ -47,16 +48,19 @@ class FastPath:
             -1 or 0.
         C0 : (G, 3, 3) attitudes; P0, S0 : (G, 6, 6) covariance and bias sensitivity.
 
+        at : indices of the samples wanted (default: all L).
+
         Returns
         -------
-        C : (L, 3, 3) ``E(T) C0 Q``: Earth rotation over the T s since the start times the
+        C : (L, 3, 3) (or one per index of ``at``) ``E(T) C0 Q``: Earth rotation over the T s
+            since the start times the
             gyro's prefix rotation ``Q`` since it (:func:`sins_align.core.preint.prefix_rotations`).
         Pa : (L, 3, 3) the attitude block of ``P + S Sigma_b S^T`` with ``P = Phi_m P0 Phi_m^T +
             Qd_m`` and ``S = Phi_m S0 + G_m`` (m steps of the constant model).
         """
         L = len(dts)
         starts = np.asarray(starts, dtype=np.int64)
-        idx = np.arange(L)
+        idx = np.arange(L) if at is None else np.asarray(at, dtype=np.int64)
         g = np.searchsorted(starts, idx, side="right") - 1          # the state each takes
         s = starts[g]
         m = idx - s                                                  # steps since it
@@ -67,7 +71,7 @@ class FastPath:
         Qs = np.concatenate([np.eye(3)[None], Qg])[starts + 1]         # (G, 3, 3)
         Ts = np.concatenate([[0.0], cum])[starts + 1]
         M = np.asarray(C0) @ Qs.transpose(0, 2, 1)                   # C0 Q_s^T
-        T = cum - Ts[g]
+        Qg, T = Qg[idx], cum[idx] - Ts[g]
         W, K = self._W, self._Ue
         E = (np.eye(3) + np.sin(W * T)[:, None, None] * K
              + (1.0 - np.cos(W * T))[:, None, None] * (K @ K))
@@ -75,7 +79,7 @@ class FastPath:
         at = np.flatnonzero(m == 0)                                  # the states themselves
         C[at] = np.asarray(C0)[g[at]]
         PhiA, QdA, GmA = model
-        if L and int(m.max()) >= len(PhiA):
+        if len(m) and int(m.max()) >= len(PhiA):
             raise ValueError(f"coast_states: {int(m.max())} steps, the model has {len(PhiA) - 1}")
         Phi, P, S = PhiA[m], np.asarray(P0)[g], np.asarray(S0)[g]
         Pa = Phi @ P @ Phi.transpose(0, 2, 1) + QdA[m]
