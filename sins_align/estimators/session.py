@@ -127,6 +127,43 @@ class AlignmentSession:
             k = b + 1
         return accepted
 
+    def feed_block_states(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, want=None):
+        """:meth:`feed_block` for an estimator with ``update_states`` (the quasi-static
+        Aligner): the same samples and results, and the estimator's outputs after each
+        sample (its ``SampleStates``; ``accepted`` marks the samples :meth:`feed` would
+        call accepted; ``want``: the samples whose outputs are needed, default all)."""
+        est = self.estimator
+        n = len(t)
+        from sins_align.estimators.quasi_static.aligner import SampleStates
+
+        out = SampleStates.empty(n)
+        if n == 0:
+            return out
+        if self._restart_request:
+            self.restart(self._restart_request)
+        finite = np.isfinite(t)
+        tl = est.t_last
+        bound = np.maximum.accumulate(np.concatenate((
+            [-np.inf if tl is None else tl], np.where(finite[:-1], t[:-1], -np.inf))))
+        back = np.flatnonzero(finite & (t < bound - est.config.max_gap))
+        k = 0
+        for b in back.tolist() + [n]:
+            if b > k:
+                self._back_run = 0
+                st = est.update_states(t[k:b], w[k:b], f[k:b],
+                                       None if want is None else want[k:b])
+                for name in ("accepted", "dcm", "covariance", "aligned", "started"):
+                    getattr(out, name)[k:b] = getattr(st, name)
+                out.used += st.used
+            if b < n:
+                out.accepted[b] = self.feed(float(t[b]), w[b], f[b])
+                out.dcm[b] = est.dcm
+                out.covariance[b] = est.covariance
+                out.aligned[b] = est.aligned
+                out.started[b] = est.t_last is not None
+            k = b + 1
+        return out
+
     # -------------------------------------------------------------- aiding measurements
     def add_velocity(self, t: float, v_enu, cov=None) -> bool:
         """A velocity measurement (ENU, m/s) for an in-motion estimator; True when it was

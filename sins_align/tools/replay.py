@@ -106,7 +106,8 @@ from sins_align.ros.params import (NODE_NAME, NODE_PARAMS, VEHICLES, VelocityRef
                                    check_param, defaults, estimator_config, load_params_yaml,
                                    make_estimator, param_spec, velocity_reference)
 from sins_align.ros.reference import VELOCITY_SILENCE, ReferenceFeed
-from sins_align.core.rotation import attitude_error, dcm_from_quat, rpy_from_dcm, so3_exp, so3_log
+from sins_align.core.rotation import (attitude_error, dcm_from_quat, heading_from_dcm,
+                                     quat_from_dcm, rpy_from_dcm, so3_exp, so3_log)
 from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ
 
 PROG = "replay"
@@ -545,7 +546,10 @@ class ReplaySession:
         cut[0] = cut[n] = True
         due = self.euler_tick.due_block(ns)
         rows = self._csv is not None or self.series is not None
-        if rows:
+        # rows from the estimator's outputs after each sample (no cut: its fast path), or,
+        # for an estimator without them, blocks cut after each row's sample
+        states = rows and hasattr(self.al, "update_states")
+        if rows and not states:
             cut[np.flatnonzero(due) + 1] = True
         frames = batch.frame_id
         if frames.count(frames[0]) != n:
@@ -571,12 +575,19 @@ class ReplaySession:
             if reach is not None:
                 self._feed_refs(int(reach[b - 1] if ahead else reach[a]))
             before = self.al.aligned
-            if self.session.feed_block(t[a:b], w[a:b], f[a:b]):
+            if states:
+                st = self.session.feed_block_states(t[a:b], w[a:b], f[a:b], due[a:b])
+                accepted = bool(st.accepted.any())
+            else:
+                accepted = self.session.feed_block(t[a:b], w[a:b], f[a:b])
+            if accepted:
                 self.last_frame_id = frames[a]
             self.samples += b - a
             self.last_ns = int(ns[b - 1])
             self._publish_flips(self.session.take_flag_changes(), before, t[a:b], ns[a:b])
-            if rows and due[b - 1]:
+            if states:
+                self._rows_from_states(st, np.flatnonzero(due[a:b]), ns[a:b])
+            elif rows and due[b - 1]:
                 self._row(self.last_ns)
 
     def _publish_flips(self, flips, before: bool, t: np.ndarray, ns: np.ndarray):
@@ -670,6 +681,22 @@ class ReplaySession:
             self._take(self.truth.query(ns, (row, al.dcm.copy())))
         else:
             self._emit(row, None, force)
+
+    def _rows_from_states(self, st, at: np.ndarray, ns: np.ndarray):
+        """The rows :meth:`_row` takes after the samples ``at`` of a block, from the
+        estimator's outputs after each (``st``: its SampleStates)."""
+        if not len(at):
+            return
+        C, P = st.dcm[at], st.covariance[at]
+        q = quat_from_dcm(C)
+        rpy = rpy_from_dcm(C) / DEG
+        heading = (heading_from_dcm(C) / DEG).tolist()
+        std = np.sqrt(np.einsum("nii->ni", P)) / DEG
+        for i, j in enumerate(at.tolist()):
+            n = int(ns[j])
+            self._last_row_ns = n
+            self._emit(((n - self.first_ns) / NS, q[i], rpy[i], heading[i], std[i],
+                        bool(st.aligned[j]), n), None)
 
     def _take(self, resolved):
         for (row, C_est), C_true in resolved:

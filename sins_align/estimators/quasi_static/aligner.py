@@ -30,12 +30,14 @@ import statistics
 from collections import Counter
 from collections.abc import Callable
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from sins_align.core.earth import gravity_enu
 from sins_align.estimators.quasi_static.config import AlignConfig
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
-from sins_align.estimators.quasi_static.fast_path import FAST_MIN_BLOCK
+from sins_align.estimators.quasi_static.fast_path import FAST_MIN_BLOCK, uniform_interval
 from sins_align.estimators.quasi_static.filter import AlignmentFilter
 from sins_align.estimators.quasi_static.monitors import RecentMotion, UnitsMonitor
 from sins_align.core.rotation import dcm_from_rpy
@@ -76,6 +78,31 @@ EVENT_KINDS = (
     "restarted",    # the alignment started over; value: why
     "rejected",     # a sample was rejected; value: the reason (REJECT_REASONS)
 )
+
+
+@dataclass
+class SampleStates:
+    """What :meth:`Aligner.update_states` returns: the estimator's outputs after each sample
+    of the call, as :attr:`Aligner.dcm`, :attr:`Aligner.covariance` and
+    :attr:`Aligner.aligned` read right after that sample was fed alone."""
+
+    #: (N,) bool: the sample was not rejected (the first one, which anchors time, counts)
+    accepted: np.ndarray
+    #: (N, 3, 3) C_b^n after the sample
+    dcm: np.ndarray
+    #: (N, 3, 3) the published attitude covariance after the sample (rad^2)
+    covariance: np.ndarray
+    #: (N,) bool: the aligned flag after the sample
+    aligned: np.ndarray
+    #: (N,) bool: a time line exists after the sample (``t_last`` is not None)
+    started: np.ndarray
+    #: how many samples were used (what :meth:`Aligner.update` returns)
+    used: int = 0
+
+    @classmethod
+    def empty(cls, n: int) -> "SampleStates":
+        return cls(np.ones(n, dtype=bool), np.empty((n, 3, 3)), np.empty((n, 3, 3)),
+                   np.zeros(n, dtype=bool), np.ones(n, dtype=bool))
 
 
 class Aligner(EventSource, AttitudeReadout):
@@ -270,11 +297,7 @@ class Aligner(EventSource, AttitudeReadout):
         if np.ndim(stamp) == 0 and np.shape(gyro) == (3,) and np.shape(accel) == (3,):
             return self._sample(float(stamp), np.asarray(gyro, dtype=float),
                                 np.asarray(accel, dtype=float))
-        t = np.atleast_1d(np.asarray(stamp, dtype=float))
-        w = np.asarray(gyro, dtype=float).reshape(-1, 3)
-        f = np.asarray(accel, dtype=float).reshape(-1, 3)
-        if not (len(t) == len(w) == len(f)):
-            raise ValueError(f"stamp, gyro and accel lengths differ: {len(t)}, {len(w)}, {len(f)}")
+        t, w, f = _sample_arrays(stamp, gyro, accel)
         n, k = 0, 0
         while k < len(t):
             j = self._clean_run(t, w, f, k)
@@ -288,6 +311,43 @@ class Aligner(EventSource, AttitudeReadout):
             n += self._sample(float(t[k]), w[k], f[k])
             k += 1
         return n
+
+    def update_states(self, stamp, gyro, accel, want=None) -> SampleStates:
+        """:meth:`update` on a block, returning the outputs after every sample
+        (:class:`SampleStates`): the attitude, the published covariance and the aligned
+        flag that reading :attr:`dcm`, :attr:`covariance` and :attr:`aligned` after feeding
+        the samples one at a time gives (the same state, to rounding), at the block path's
+        speed: between two updates the state coasts in closed form
+        (:meth:`AlignmentFilter.coast_states`) and the coarse pass's floors are evaluated
+        for all samples at once. Runs that the fast path does not take, or whose intervals
+        are not uniform, go one sample at a time. ``want``: (N,) bool, the samples whose
+        outputs are needed (default all; the others' dcm and covariance are left unset)."""
+        t, w, f = _sample_arrays(stamp, gyro, accel)
+        out = SampleStates.empty(len(t))
+        want = np.ones(len(t), dtype=bool) if want is None else np.asarray(want, dtype=bool)
+        k = 0
+        while k < len(t):
+            j = self._clean_run(t, w, f, k)
+            if j - k >= FAST_MIN_BLOCK and uniform_interval(
+                    np.diff(t[k:j], prepend=self.t_last)) is not None:
+                used = self._accept_block(t[k:j], w[k:j], f[k:j], states=out, at=k,
+                                          want=want)
+                out.used += used
+                k += used
+                if k == j:
+                    continue
+            else:
+                j = k + 1
+            for i in range(k, j):           # one by one (j - k = 1 after a cut block)
+                r = sum(self.rejected.values())
+                out.used += self._sample(float(t[i]), w[i], f[i])
+                out.accepted[i] = sum(self.rejected.values()) == r
+                out.dcm[i] = self.dcm
+                out.covariance[i] = self.covariance
+                out.aligned[i] = self._aligned
+                out.started[i] = self.t_last is not None
+            k = j
+        return out
 
     def _clean_run(self, t, w, f, k) -> int:
         """End index of the run of samples from k that the per-sample checks would all accept
@@ -321,9 +381,12 @@ class Aligner(EventSource, AttitudeReadout):
             prev = tt[-1]
         return end
 
-    def _accept_block(self, t, w, f) -> int:
+    def _accept_block(self, t, w, f, states: SampleStates | None = None, at: int = 0,
+                      want=None) -> int:
         """Clean samples through the fast path: all of them, or those before the first
-        units-check window closing that would flag the rates. Returns how many."""
+        units-check window closing that would flag the rates. Returns how many.
+        ``states``: filled from ``at`` with the outputs after each sample (uniform
+        intervals only, :meth:`update_states`)."""
         dts = np.diff(t, prepend=self.t_last)
         if self._units is not None:
             m = self._units.add_block(dts, w, f)
@@ -335,18 +398,129 @@ class Aligner(EventSource, AttitudeReadout):
         self.samples_used += len(t)
         self._recent.extend(dts, w, f)
 
+        fl = self.filter
+        snaps: dict = {}
+        if states is not None:
+            snaps[-1] = self._snapshot()
+            hist = fl.buffered_forces()
+            coarse_model = None
+            if not fl.backtracked:
+                dt = uniform_interval(dts)
+                period = fl.fine_period if fl.fine else self.config.coarse_update_period
+                coarse_model = fl.coast_model(dt, min(len(t), int(period / dt) + 2))
+
         def check(i):                     # after every live update, as after every sample
             self.t_last = float(t[i])
             self._refresh_aligned()
+            if states is not None:
+                snaps[i] = self._snapshot()
 
-        self.filter.on_update = check
+        fl.on_update = check
         try:
-            self.filter.run_fast(dts, w, f)
+            fl.run_fast(dts, w, f)
         finally:
-            self.filter.on_update = None
+            fl.on_update = None
         self.t_last = float(t[-1])
         self._refresh_aligned()
+        if states is not None:
+            self._fill_states(states, at, dts, w, f, snaps, coarse_model, hist,
+                              np.flatnonzero(want[at:at + len(t)]))
         return len(t)
+
+    def _snapshot(self) -> tuple:
+        fl = self.filter
+        return (fl.C[0].copy(), fl.P[0], fl.S[0], self._aligned, fl.backtracked)
+
+    def _fill_states(self, out: SampleStates, at: int, dts, w, f, snaps: dict, coarse_model,
+                     hist, sel: np.ndarray) -> None:
+        """The outputs after each sample of a fast block (see :meth:`update_states`) from the
+        states after its updates (``snaps``: sample index -> (C, P, S, aligned flag,
+        backtracked), -1 before the block): coasted in between, then the published
+        covariance's floors (before the backtrack) and the heading rule of
+        :attr:`covariance`, for the samples ``sel`` of the block."""
+        fl, c = self.filter, self.config
+        L = len(dts)
+        dt = uniform_interval(dts)
+        idx = sorted(snaps)
+        C, Pa = np.empty((len(sel), 3, 3)), np.empty((len(sel), 3, 3))
+        # stretches of one model: before and after the backtrack (it changes the noise)
+        groups: list[list[int]] = []
+        for i in idx:
+            if groups and snaps[groups[-1][0]][4] == snaps[i][4]:
+                groups[-1].append(i)
+            else:
+                groups.append([i])
+        for gi, grp in enumerate(groups):
+            lo = max(grp[0], 0)
+            hi = groups[gi + 1][0] if gi + 1 < len(groups) else L
+            if snaps[grp[0]][4]:                 # backtracked: the model in force now
+                steps = max(np.diff(grp + [hi]).max() if len(grp) else 0, 1)
+                model = fl.coast_model(dt, int(steps))
+            else:
+                model = coarse_model
+            st = [snaps[i] for i in grp]
+            a, b = np.searchsorted(sel, [lo, hi])
+            if b > a:
+                C[a:b], Pa[a:b] = fl.coast_states(
+                    model, dts[lo:hi], w[lo:hi], np.array(grp) - lo,
+                    np.array([x[0] for x in st]), np.array([x[1] for x in st]),
+                    np.array([x[2] for x in st]), sel[a:b] - lo)
+        g = np.searchsorted(np.array(idx), np.arange(L), side="right") - 1
+        flags = np.array([snaps[i][3] for i in idx])[g]
+        flags[-1] = self._aligned
+        if c.backtrack:
+            coarse = np.array([not snaps[i][4] for i in idx])[g][sel]
+            n = int(np.argmin(coarse)) if not coarse.all() else len(sel)  # the coarse ones
+            if n:
+                Pa[:n] = self._coarse_floors(C[:n], Pa[:n], sel[:n], f, hist, L)
+        if not self.heading_observable:
+            Pa[:, 2, :] = 0.0
+            Pa[:, :, 2] = 0.0
+            Pa[:, 2, 2] = math.pi ** 2
+        sl = slice(at, at + L)
+        out.dcm[at + sel] = C
+        out.covariance[at + sel] = 0.5 * (Pa + Pa.transpose(0, 2, 1))
+        out.aligned[sl] = flags
+        out.accepted[sl] = True
+        out.started[sl] = True
+
+    def _coarse_floors(self, C, Pa, pos, f, hist, L: int):
+        """:attr:`covariance`'s floors before the backtrack, for n samples at once: the
+        attitudes C (n, 3, 3) and covariances Pa (n, 3, 3) after the samples ``pos`` (n,
+        increasing) of a fast block of L (forces f), whose buffered forces before it were
+        ``hist``."""
+        c = self.config
+        n = len(C)
+        up = C[:, 2, :]
+
+        def angle(cos):
+            return np.arccos(np.clip(cos, -1.0, 1.0))
+
+        level = np.full(n, c.fine_initial_std_deg[0] * DEG)
+        fm = self._recent.window_mean_forces(1.0, L)[pos]
+        level = np.maximum(level, angle(np.einsum("ij,ij->i", up, fm) / np.maximum(
+            np.linalg.norm(fm, axis=1), 1e-12)))
+        if self.nominal_dt is not None and hist is not None:
+            k = max(1, int(round(1.0 / self.nominal_dt)))
+            n0 = len(hist)
+            cnt = (n0 + pos + 1) // k                          # complete blocks after each
+            b0, b1 = max(0, int(cnt[0]) - 10), int(cnt[-1])
+            if b1 > b0:
+                allf = np.concatenate([hist[b0 * k:], f[:max(0, b1 * k - n0)]])
+                # (hist may be shorter than b0 k: then the block's own forces start later)
+                allf = allf if b0 * k <= n0 else f[b0 * k - n0:b1 * k - n0]
+                means = allf[:(b1 - b0) * k].reshape(b1 - b0, k, 3).mean(axis=1)
+                cos = (up @ means.T) / np.maximum(np.linalg.norm(means, axis=1), 1e-12)
+                blk = np.arange(b0, b1)
+                inside = (blk[None, :] >= cnt[:, None] - 10) & (blk[None, :] < cnt[:, None])
+                cosmin = np.where(inside, cos, np.inf).min(axis=1)
+                level = np.where(cnt >= 2, np.maximum(level, angle(cosmin)), level)
+            level = np.where(cnt < 2, np.maximum(level, c.coarse_initial_std_deg[0] * DEG),
+                             level)
+        floor = np.stack([level, level, np.full(n, c.coarse_initial_std_deg[1] * DEG)], 1)
+        sd = np.sqrt(np.einsum("nii->ni", Pa))
+        scale = np.maximum(floor, sd) / sd
+        return Pa * (scale[:, :, None] * scale[:, None, :])
 
     def _static_reason(self, w: np.ndarray, f: np.ndarray) -> str | None:
         """The reason to reject a sample on its own values (no time line needed), or None."""
@@ -581,3 +755,13 @@ class Aligner(EventSource, AttitudeReadout):
                                        else bool(vrw[0] > self.config.specs.accel_vrw)),
             "nis": self.nis,
         }
+
+
+def _sample_arrays(stamp, gyro, accel):
+    """Stamps (N,), rates and forces (N, 3) as float arrays; their lengths checked."""
+    t = np.atleast_1d(np.asarray(stamp, dtype=float))
+    w = np.asarray(gyro, dtype=float).reshape(-1, 3)
+    f = np.asarray(accel, dtype=float).reshape(-1, 3)
+    if not (len(t) == len(w) == len(f)):
+        raise ValueError(f"stamp, gyro and accel lengths differ: {len(t)}, {len(w)}, {len(f)}")
+    return t, w, f

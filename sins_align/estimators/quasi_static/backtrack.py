@@ -103,6 +103,13 @@ class Backtrack:
         vel = np.maximum(c.initial_velocity_std, 3.0 * fit.v0_std)
         return C0, np.concatenate([att, vel], axis=1), fit.v0
 
+    def buffered_forces(self) -> np.ndarray | None:
+        """Before the backtrack: the specific force (M, 3) of run 0's buffered samples, a
+        copy (None once the buffer is gone)."""
+        if self._buf is None:
+            return None
+        return self._buf.arrays()[2][:, 0].copy()
+
     def force_block_means(self, k: int, most: int = 10) -> np.ndarray | None:
         """Before the backtrack: the mean specific force (m, N, 3) of the last ``most``
         complete blocks of ``k`` buffered samples (None once the buffer is gone)."""

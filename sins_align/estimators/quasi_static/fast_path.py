@@ -18,8 +18,8 @@ import numpy as np
 from sins_align.core.kalman import affine_scan, discretize, inv3, riccati_steps
 from sins_align.core.models import (averaged_measurement_matrix,
                                     measurement_matrix)
-from sins_align.core.preint import preintegrate, scratch_array
-from sins_align.core.rotation import so3_exp, so3_exp_entries
+from sins_align.core.preint import prefix_rotations, preintegrate, scratch_array
+from sins_align.core.rotation import dcm_entries_from_quat, so3_exp, so3_exp_entries
 
 #: runs of at least this many regular samples take the fast path (Aligner.update, backtrack)
 FAST_MIN_BLOCK = 64
@@ -30,6 +30,77 @@ PIECE_SAMPLE_RUNS = 1 << 18
 class FastPath:
     """Closed-form integration between updates and the cached gain schedule (a part of
     AlignmentFilter; see the module docstring)."""
+
+    def coast_states(self, model, dts: np.ndarray, w: np.ndarray, starts, C0, P0, S0,
+                     at: np.ndarray | None = None):
+        """The state after every sample of a stretch with no update and no change of the
+        model (one run, constant model, uniform intervals): what the per-sample recursion
+        gives, in closed form and vectorised over the samples.
+
+        Parameters
+        ----------
+        model : :meth:`coast_model` of the stretch (taken while the model held: the
+            backtrack changes the process noise).
+        dts, w : ndarray (L,), (L, 3) — the samples' intervals (s) and rates (rad/s).
+        starts : sequence of G increasing ints in [-1, L) — state g is the state after sample
+            ``starts[g]`` (-1: before the first); it holds (``m`` = 0) at that sample and is
+            coasted over the samples after it until the next start. ``starts[0]`` must be
+            -1 or 0.
+        C0 : (G, 3, 3) attitudes; P0, S0 : (G, 6, 6) covariance and bias sensitivity.
+
+        at : indices of the samples wanted (default: all L).
+
+        Returns
+        -------
+        C : (L, 3, 3) (or one per index of ``at``) ``E(T) C0 Q``: Earth rotation over the T s
+            since the start times the
+            gyro's prefix rotation ``Q`` since it (:func:`sins_align.core.preint.prefix_rotations`).
+        Pa : (L, 3, 3) the attitude block of ``P + S Sigma_b S^T`` with ``P = Phi_m P0 Phi_m^T +
+            Qd_m`` and ``S = Phi_m S0 + G_m`` (m steps of the constant model).
+        """
+        L = len(dts)
+        starts = np.asarray(starts, dtype=np.int64)
+        idx = np.arange(L) if at is None else np.asarray(at, dtype=np.int64)
+        g = np.searchsorted(starts, idx, side="right") - 1          # the state each takes
+        s = starts[g]
+        m = idx - s                                                  # steps since it
+        q = prefix_rotations(dts[None, :], np.asarray(w, dtype=float)[None])
+        Qg = np.stack(dcm_entries_from_quat(*(c[0] for c in q)), -1).reshape(L, 3, 3)
+        cum = np.cumsum(dts)
+        # the rotation and the time since each start: Q_s^T Q_j, cum_j - cum_s
+        Qs = np.concatenate([np.eye(3)[None], Qg])[starts + 1]         # (G, 3, 3)
+        Ts = np.concatenate([[0.0], cum])[starts + 1]
+        M = np.asarray(C0) @ Qs.transpose(0, 2, 1)                   # C0 Q_s^T
+        Qg, T = Qg[idx], cum[idx] - Ts[g]
+        W, K = self._W, self._Ue
+        E = (np.eye(3) + np.sin(W * T)[:, None, None] * K
+             + (1.0 - np.cos(W * T))[:, None, None] * (K @ K))
+        C = E @ M[g] @ Qg
+        at = np.flatnonzero(m == 0)                                  # the states themselves
+        C[at] = np.asarray(C0)[g[at]]
+        PhiA, QdA, GmA = model
+        if len(m) and int(m.max()) >= len(PhiA):
+            raise ValueError(f"coast_states: {int(m.max())} steps, the model has {len(PhiA) - 1}")
+        Phi, P, S = PhiA[m], np.asarray(P0)[g], np.asarray(S0)[g]
+        Pa = Phi @ P @ Phi.transpose(0, 2, 1) + QdA[m]
+        Sa = Phi @ S + GmA[m]
+        Pa += (Sa * self._bias_var) @ Sa.transpose(0, 2, 1)
+        return C, Pa
+
+    def coast_model(self, dt: float, most: int):
+        """For :meth:`coast_states`, with the current process noise: the attitude rows of
+        the m-step transition and bias input and the attitude block
+        of the m-step process noise, m = 0..most, stacked (m = 0: I, 0, 0)."""
+        key = ("Dm", dt, "stacks")
+        st = self._cache.get(key)
+        if st is None or len(st[0]) <= most:
+            steps = [self._disc_m(k, dt) for k in range(1, most + 1)]
+            eye = np.eye(6)[:3]
+            st = self._cache[key] = (
+                np.array([eye] + [p[:3] for p, _, _ in steps]),
+                np.array([np.zeros((3, 3))] + [q[:3, :3] for _, q, _ in steps]),
+                np.array([np.zeros((3, 6))] + [gm[:3] for _, _, gm in steps]))
+        return st
 
     def run_fast(self, dt, w: np.ndarray, f: np.ndarray):
         """Many samples: same result as :meth:`run`, much faster.
@@ -49,10 +120,9 @@ class FastPath:
             self.run(dts, w, f)
             return
         mean = float(dts.mean())
-        if np.all(np.abs(dts - mean) <= 1e-9 * mean):
-            # uniform: the cached m-step schedule applies; 12 significant digits make the
-            # mean of stamp differences the same number from one block to the next
-            dts = float(f"{mean:.12g}")
+        uni = uniform_interval(dts)
+        if uni is not None:
+            dts = uni
         elif not np.all(np.abs(dts - mean) <= 0.4 * mean):
             raise ValueError("run_fast: sample intervals vary by more than 40 %")
         self.fast = True
@@ -506,6 +576,17 @@ def _increment(CA, U, U2) -> tuple:
     return (c0 + u0 * c1 + u1 * c4 + u2 * c7 + w0 * c2 + w1 * c5 + w2 * c8,
             c3 + u3 * c1 + u4 * c4 + u5 * c7 + w3 * c2 + w4 * c5 + w5 * c8,
             c6 + u6 * c1 + u7 * c4 + u8 * c7 + w6 * c2 + w7 * c5 + w8 * c8)
+
+
+def uniform_interval(dts: np.ndarray) -> float | None:
+    """The one interval the fast path integrates ``dts`` with when they are uniform (each
+    within 1e-9 of their mean; 12 significant digits make the mean of stamp differences the
+    same number from one block to the next, so the cached m-step schedule applies), else
+    None."""
+    mean = float(dts.mean())
+    if np.all(np.abs(dts - mean) <= 1e-9 * mean):
+        return float(f"{mean:.12g}")
+    return None
 
 
 def part(dt, a: int, b: int):

@@ -134,6 +134,23 @@ class RecentMotion:
             left -= m
         return total / k
 
+    def window_mean_forces(self, seconds: float, m: int) -> np.ndarray:
+        """:meth:`mean_force` as it read after each of the newest ``m`` rows were pushed,
+        (m, 3): the same windows (:meth:`window_rows`), summed as differences of a running
+        sum over the rows they span (equal to rounding)."""
+        n = self._n
+        m = min(m, n)
+        pieces = self._pieces()
+        before = np.concatenate([self._before[a:b] for a, b in pieces])
+        after = np.append(before[1:], self._total)          # the running time after each row
+        end = np.arange(n - m, n) + 1
+        start = np.searchsorted(before, after[n - m:] - seconds, side="left")
+        start = np.minimum(start, end - 1)
+        lo = int(start.min()) if m else n
+        fT = np.concatenate([self._fT[:, a:b] for a, b in pieces], axis=1)[:, lo:]
+        cs = np.concatenate([np.zeros((3, 1)), np.cumsum(fT, axis=1)], axis=1)
+        return ((cs[:, end - lo] - cs[:, start - lo]) / (end - start)).T
+
     def bridge_errors(self, hole: float, nom: float, w_next, f_next, held: bool = True):
         """The bridges of a hole of ``hole`` seconds before the sample (w_next, f_next) and
         their errors: ``(means, held, (w_mean, f_mean))`` with ``means`` and ``held`` the
