@@ -323,3 +323,28 @@ def test_grade_specs_with_everything_on_runs():
                             gnss_latency=0.1, gnss_dropouts=[(50, 60)], gnss_pos_sigma=1.0)
     assert len(r.gnss_t) == 4001 - 200
     assert np.all(np.isfinite(r.gyro)) and np.all(np.isfinite(r.gnss_v))
+
+
+def test_imu_ahead_of_the_rear_axle():
+    """car_city with the IMU 1.5 m ahead of the trajectory's point (the rear axle) and 0.3 m
+    to the left: the attitude is the body's, the IMU's velocity is the axle's plus
+    C (w x r) (sideways yaw rate x 1.5 m in the turns), and the simulated sensors still
+    integrate to that truth with the plain mechanization's second-order residual."""
+    traj = trajectory_preset("car_city")
+    r0 = simulate_trajectory(traj, 100.0)
+    pos = np.array([1.5, 0.3, 0.0])
+    r = simulate_trajectory(traj, 100.0, imu_position=pos)
+    np.testing.assert_array_equal(r.C, r0.C)
+    # the rates differ only by the transport rate of the IMU's velocity (< 1e-7 rad/s)
+    np.testing.assert_allclose(r.gyro, r0.gyro, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(r.v, r0.v + np.einsum("nij,nj->ni", r.C, np.cross(r.w_nb, pos)),
+                               rtol=0, atol=1e-12)
+    v_body = np.einsum("nji,nj->ni", r.C, r.v)
+    yaw_rate = r.w_nb[:, 2]
+    assert np.abs(v_body[:, 1] - 1.5 * yaw_rate).max() < 1e-3 * 1.5 * np.abs(yaw_rate).max()
+    assert 0.2 < np.abs(v_body[:, 1]).max() < 0.3                     # 9 deg/s x 1.5 m
+    e = _errors(r, mechanize_block(r.state(0), r.dt, r.gyro, r.accel))
+    assert np.all(e < np.array(TOL["car_city"])), e
+    assert np.abs(r.accel - r0.accel).max() > 0.01                   # the lever's force
+    with pytest.raises(ValueError, match="imu_position"):
+        simulate_trajectory(traj, 100.0, imu_position=(np.nan, 0.0, 0.0))

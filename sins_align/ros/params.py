@@ -143,6 +143,11 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("lateral_axis", 1, "vehicle ground: the IMU axis that points to the vehicle's "
               "side, 0 = x, 1 = y, 2 = z (1 for an IMU mounted x forward, y left; 0 for a "
               "right-forward-up IMU). A number: YAML reads a bare y as true.", 0, 2),
+    ParamSpec("nhc_lever_arm", [0.0, 0.0, 0.0], "vehicle ground: lever arm from the IMU to "
+              "the point with no sideways velocity (a car's rear-axle centre), m, in the IMU "
+              "frame.", rule=_check_lever_arm),
+    ParamSpec("nhc_lever_arm_std", 2.0, "vehicle ground: 1-sigma of nhc_lever_arm per axis, "
+              "m; > 0 estimates it in turns (0: taken as exact).", 0.0, 100.0),
     ParamSpec("attitude_matching", False, "velocity_type odometry: also match the master "
               "INS attitude (its body axes taken as the IMU's; off: its velocity only)."),
     ParamSpec("navsat_topic", "", "sensor_msgs/NavSatFix topic for latitude, longitude and "
@@ -396,6 +401,8 @@ def motion_config_from_params(values: dict[str, Any]):
         velocity_noise=float(m["velocity_noise"]),
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
         nhc_axis=int(m["lateral_axis"]),
+        nhc_lever_arm=tuple(float(x) for x in m["nhc_lever_arm"]),
+        nhc_lever_arm_std=float(m["nhc_lever_arm_std"]),
         attitude_matching=bool(m["attitude_matching"]),
         initial_rpy_deg=_initial_rpy(m),
         # a moving vehicle turns and rolls faster than a parked base sways, and an IMU hole

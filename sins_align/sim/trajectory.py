@@ -18,6 +18,14 @@ such a channel:
 - ``v^n = [u cos psi - w sin psi, u sin psi + w cos psi, v_U]`` (ENU; ``w`` to the left of the
   heading), ``C_b^n = dcm_from_rpy([roll, pitch, psi])`` (REP-103).
 
+The trajectory is that of one point of the body (a car's rear-axle centre: the point whose
+velocity has no sideways component). ``imu_position`` (body axes, m) puts the IMU elsewhere
+on the rigid body: its velocity is ``v + C (w_nb^b x r)``, its acceleration gets
+``C (dw_nb^b/dt x r + w_nb^b x (w_nb^b x r))`` (``dw/dt`` by central differences on the
+half-sample grid) and its position is integrated from that velocity; the attitude is the
+body's. An IMU ahead of a car's rear axle sees a sideways velocity ``yaw rate x distance``
+in every turn.
+
 Waves (a ship's sway) add ``A sin(2 pi t / P + phase)`` to the roll, pitch or yaw angle of the
 body, or to its height (heave). The angle waves turn the body about the track only: the
 velocity keeps the track yaw ``psi`` (a hull yawing +-1 deg does not steer its course), and
@@ -340,8 +348,9 @@ def _cum_simpson(f: np.ndarray, dt: float, y0) -> np.ndarray:
     return out
 
 
-def _kinematics(traj: Trajectory, t: np.ndarray, dt: float) -> dict:
-    """Truth on the half grid t (2N+1 points): C, v, dv/dt, w_nb^b, lat, lon, h."""
+def _kinematics(traj: Trajectory, t: np.ndarray, dt: float, imu_position=None) -> dict:
+    """Truth on the half grid t (2N+1 points): C, v, dv/dt, w_nb^b, lat, lon, h; of the point
+    ``imu_position`` (body axes, m) from the trajectory's point when given."""
     ch = _channels(traj, t)
     wv = _waves(traj, t)
     a_u, _, Q_u = ch["accel"]
@@ -367,6 +376,12 @@ def _kinematics(traj: Trajectory, t: np.ndarray, dt: float) -> dict:
     w_nb = np.stack([dph - dpsi_b * np.sin(th),
                      dth * np.cos(ph) + dpsi_b * np.sin(ph) * np.cos(th),
                      -dth * np.sin(ph) + dpsi_b * np.cos(ph) * np.cos(th)], -1)
+    if imu_position is not None and np.any(imu_position):
+        r = np.asarray(imu_position, dtype=float)
+        dw = np.gradient(w_nb, 0.5 * dt, axis=0, edge_order=2)
+        wxr = np.cross(w_nb, r)
+        v = v + np.einsum("nij,nj->ni", C, wxr)
+        vdot = vdot + np.einsum("nij,nj->ni", C, np.cross(dw, r) + np.cross(w_nb, wxr))
     lat0, lon0, h0 = traj.lat_deg * DEG, traj.lon_deg * DEG, traj.height_m
     h = _cum_simpson(v[:, 2], dt, h0)
     lat = np.full_like(t, lat0)
@@ -492,7 +507,8 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
                         vibration: Vibration | None = None, gnss_latency: float = 0.0,
                         gnss_dropouts: Sequence[tuple[float, float]] = (),
                         gnss_dropout_prob: float = 0.0, gnss_vertical: bool = True,
-                        gnss_pos_sigma: float = 0.0) -> TrajectoryResult:
+                        gnss_pos_sigma: float = 0.0,
+                        imu_position=(0.0, 0.0, 0.0)) -> TrajectoryResult:
     """Simulate ``traj`` (see the module docstring).
 
     Parameters
@@ -513,6 +529,8 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
     gnss_dropout_prob : probability (0 to 1) that an epoch is lost at random.
     gnss_vertical : False — no vertical velocity (NaN).
     gnss_pos_sigma : m — white noise std of each ENU axis of the GNSS position (0: none).
+    imu_position : (3,) m, body axes — from the trajectory's point (a car's rear-axle centre)
+        to the IMU; the truth (v, position) is then the IMU's (see the module docstring).
     """
     if not rate > 0.0:
         raise ValueError(f"rate must be > 0 Hz, got {rate!r}")
@@ -530,6 +548,9 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
     lever = np.asarray(lever_arm, dtype=float).reshape(3)
     if not np.all(np.isfinite(lever)):
         raise ValueError(f"lever_arm must be finite, got {lever.tolist()}")
+    imu_pos = np.asarray(imu_position, dtype=float).reshape(3)
+    if not np.all(np.isfinite(imu_pos)):
+        raise ValueError(f"imu_position must be finite, got {imu_pos.tolist()}")
     if isinstance(specs, str):
         specs = grade_specs(specs)
     dt = 1.0 / rate
@@ -540,7 +561,7 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
     if n < 1:
         raise ValueError("the run is shorter than one IMU sample")
     th = np.arange(2 * n + 1) * (0.5 * dt)
-    k = _kinematics(traj, th, dt)
+    k = _kinematics(traj, th, dt, imu_pos)
     C, v, lat, h = k["C"], k["v"], k["lat"], k["h"]
     w_ie = earth_rate(lat)
     w_en = transport_rate(v, lat, h)

@@ -789,6 +789,9 @@ class ReplaySession:
                 "topic": ref.topic, "type": ref.type, "frame": ref.frame,
                 "navsat_topic": ref.navsat_topic or None, **self.feed.counts()}
             out["final"]["velocity_enu_mps"] = np.asarray(al.velocity, dtype=float).tolist()
+            if al.config.vehicle == "ground":
+                out["final"]["nhc_lever_arm_m"] = np.asarray(al.nhc_lever_arm,
+                                                             dtype=float).tolist()
         if self.truth is not None:
             fin = out["final"]
             fin["error_enu_deg"] = None if self.final_error is None else self.final_error.tolist()
@@ -970,6 +973,9 @@ def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
         out.update(estimator="in_motion", longitude_deg=config.longitude_deg,
                    lever_arm_m=list(config.lever_arm), velocity_noise_mps=config.velocity_noise,
                    max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle)
+        if config.vehicle == "ground":
+            out.update(nhc_lever_arm_m=list(config.nhc_lever_arm),
+                       nhc_lever_arm_std_m=config.nhc_lever_arm_std)
     return out
 
 

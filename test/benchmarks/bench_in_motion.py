@@ -117,6 +117,9 @@ SCENARIOS = (
     Scenario("seed003/+20+20+175", "uav_seed003", SEED003_SPECS, (20, 20, 175)),
     Scenario("car_city/air", "car_city", CAR_MEMS, cfg=dict(vehicle="air")),
     Scenario("car_city/ground", "car_city", CAR_MEMS, cfg=dict(vehicle="ground", nhc_axis=1)),
+    # the IMU 1.5 m ahead of the rear axle (a centre console): sideways yaw rate x 1.5 m
+    Scenario("car_city/ground+axle", "car_city", CAR_MEMS, sim=dict(imu_position=(1.5, 0, 0)),
+             cfg=dict(vehicle="ground", nhc_axis=1)),
     Scenario("ship/lever12", "ship_under_way", "navigation",
              sim=dict(lever_arm=(-5.0, 3.0, 11.0)), cfg=dict(vehicle="marine")),
     Scenario("uav/vib+sf+lat", "uav_seed003", SEED003_SPECS, (3, 4, 45), live=True,

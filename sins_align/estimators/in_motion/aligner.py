@@ -192,6 +192,13 @@ class MotionAligner(EventSource, AttitudeReadout):
                 else self.ekf.corrected(self._best)[4])
 
     @property
+    def nhc_lever_arm(self) -> np.ndarray:
+        """m, IMU frame: the estimated (or configured) lever arm from the IMU to the point of
+        the non-holonomic constraint (a ground vehicle's rear-axle centre)."""
+        return (np.array(self.config.nhc_lever_arm) if self.ekf is None
+                else self.ekf.corrected(self._best)[6])
+
+    @property
     def nis(self) -> float:
         """Mean NIS per degree of freedom over the last ``aligned_nis_window`` s (nan: none)."""
         if not self._nis:
@@ -378,7 +385,9 @@ class MotionAligner(EventSource, AttitudeReadout):
         extra = tuple(x for x, on in (("lever", c.lever_arm_std > 0),
                                       ("mount", c.attitude_matching and c.mounting_std_deg > 0),
                                       ("gyro_scale", c.gyro_scale_std > 0),
-                                      ("accel_scale", c.accel_scale_std > 0))
+                                      ("accel_scale", c.accel_scale_std > 0),
+                                      ("nhc_lever", c.vehicle == "ground"
+                                       and c.nhc_lever_arm_std > 0))
                       if on)
         n = 12 + 3 * len(extra)
         P = np.zeros((K, n, n))
@@ -393,12 +402,13 @@ class MotionAligner(EventSource, AttitudeReadout):
         i = 12
         for x in extra:
             std = {"lever": c.lever_arm_std, "mount": c.mounting_std_deg * DEG,
-                   "gyro_scale": c.gyro_scale_std, "accel_scale": c.accel_scale_std}[x]
+                   "gyro_scale": c.gyro_scale_std, "accel_scale": c.accel_scale_std,
+                   "nhc_lever": c.nhc_lever_arm_std}[x]
             P[:, i:i + 3, i:i + 3] = np.eye(3) * std ** 2
             i += 3
         lat, lon, h = self.position
         self.ekf = InvariantEKF(NavState(Cs[0], z, lat, lon, h), P, self.noise, c.lever_arm, C=Cs,
-                                extra=extra)
+                                extra=extra, nhc_lever_arm=c.nhc_lever_arm)
         if c.feedback == "lqr":
             self.ekf.schedule = LqrFeedback(lqr_gain(n, lat, g, c.lqr_time_constant))
         elif c.feedback == "fraction":
@@ -736,6 +746,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             "bias_gyro_dph": (self.bias_gyro / DPH).tolist() if ok else None,
             "bias_accel_mg": (self.bias_accel / 9.80665e-3).tolist() if ok else None,
             "lever_arm_m": self.lever_arm.tolist(),
+            "nhc_lever_arm_m": self.nhc_lever_arm.tolist(),
             "mounting_deg": (self.ekf.corrected(self._best)[5] / DEG).tolist() if ok else None,
             "feedback": self.config.feedback,
             "gyro_scale_ppm": (self.ekf.sf[self._best] * 1e6).tolist() if ok else None,

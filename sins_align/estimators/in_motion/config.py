@@ -39,6 +39,14 @@ class MotionConfig:
     nhc_axis : 0, 1, 2 — the IMU axis that points to the vehicle's side (REP-103 IMU mounted
         x forward, y left: 1).
     nhc_period : s — interval of the non-holonomic updates.
+    nhc_lever_arm : (3,) m, IMU frame — from the IMU to the point of the vehicle whose
+        velocity has no sideways component (a car's rear-axle centre). An IMU ahead of the
+        rear axle moves sideways at yaw rate x distance in every turn (0.24 m/s at 9 deg/s
+        and 1.5 m); the constraint is applied at that point.
+    nhc_lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (3 more
+        states, observable in turns; in straight driving it does not matter). The default
+        2 m covers an IMU anywhere in a car with the default (0, 0, 0); 0 takes
+        ``nhc_lever_arm`` as exact.
     initial_rpy_deg : REP-103 roll, pitch, yaw guess, or None. Roll and pitch are always
         taken from the accelerometers at the start (any start converges, upside down too);
         the yaw is the heading guess.
@@ -85,6 +93,8 @@ class MotionConfig:
     nhc_noise: float = 0.1
     nhc_axis: int = 1
     nhc_period: float = 0.1
+    nhc_lever_arm: tuple = (0.0, 0.0, 0.0)
+    nhc_lever_arm_std: float = 2.0
     initial_rpy_deg: tuple | None = None
     initial_heading_std_deg: float = 180.0
     heading_hypotheses: int = 12
@@ -112,6 +122,10 @@ class MotionConfig:
             raise ValueError("specs must be a SensorSpecs or a grade name")
         lev = tuple(float(x) for x in np.asarray(self.lever_arm, dtype=float).reshape(3))
         object.__setattr__(self, "lever_arm", lev)
+        nhl = tuple(float(x) for x in np.asarray(self.nhc_lever_arm, dtype=float).reshape(3))
+        if not all(math.isfinite(x) for x in nhl + lev):
+            raise ValueError("lever_arm and nhc_lever_arm must be finite")
+        object.__setattr__(self, "nhc_lever_arm", nhl)
         if self.initial_rpy_deg is not None:
             object.__setattr__(self, "initial_rpy_deg", tuple(
                 float(x) for x in np.asarray(self.initial_rpy_deg, dtype=float).reshape(3)))
@@ -140,11 +154,12 @@ class MotionConfig:
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
         for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m",
-                     "mounting_std_deg", "gyro_scale_std", "accel_scale_std"):
+                     "mounting_std_deg", "gyro_scale_std", "accel_scale_std",
+                     "nhc_lever_arm_std"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x)):
                 raise ValueError(f"{name} must be finite, got {x!r}")
         if min(self.lever_arm_std, self.max_measurement_lag, self.mounting_std_deg,
-               self.gyro_scale_std, self.accel_scale_std) < 0:
-            raise ValueError("lever_arm_std, max_measurement_lag, mounting_std_deg and the "
-                             "scale-factor stds must be >= 0")
+               self.gyro_scale_std, self.accel_scale_std, self.nhc_lever_arm_std) < 0:
+            raise ValueError("lever_arm_std, nhc_lever_arm_std, max_measurement_lag, "
+                             "mounting_std_deg and the scale-factor stds must be >= 0")

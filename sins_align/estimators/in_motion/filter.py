@@ -111,7 +111,7 @@ IPHI, INU, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 #: arm (body, m), the mounting misalignment of a master INS (``C_slave = C_master exp(mu
 #: x)``, rad, master axes), the gyro scale factors (``gyro = (1 + s) w + b_g``, per axis)
 #: and the accelerometer scale factors (``accel = (1 + s_a) f + b_a``)
-EXTRA_STATES = ("lever", "mount", "gyro_scale", "accel_scale")
+EXTRA_STATES = ("lever", "mount", "gyro_scale", "accel_scale", "nhc_lever")
 _I3 = np.eye(3)
 
 
@@ -211,12 +211,14 @@ class InvariantEKF:
     P0 : (n, n) or (K, n, n) — initial error covariance(s).
     noise : NoiseModel.
     lever_arm : (3,) m, body — initial lever arm.
+    nhc_lever_arm : (3,) m, body — initial lever arm of the non-holonomic point
+        (:meth:`update_lateral`).
     extra : which of :data:`EXTRA_STATES` are estimated (their blocks follow the core 12 in
         that order; P0 must have 12 + 3 per block rows).
     """
 
     def __init__(self, state: NavState, P0, noise: NoiseModel, lever_arm=(0, 0, 0), C=None,
-                 extra=()):
+                 extra=(), nhc_lever_arm=(0, 0, 0)):
         C = state.C[None] if C is None else np.asarray(C, dtype=float).reshape(-1, 3, 3)
         K = len(C)
         self.C = C.copy()
@@ -233,7 +235,7 @@ class InvariantEKF:
         blocks = [x for x in EXTRA_STATES if x in extra]
         if self.P.shape[-2:] != (12 + 3 * len(blocks),) * 2:
             raise ValueError(f"P0 must be {12 + 3 * len(blocks)} square for extra={blocks}")
-        self.i_lev = self.i_mnt = self.i_sf = self.i_sa = None
+        self.i_lev = self.i_mnt = self.i_sf = self.i_sa = self.i_nhl = None
         for i, x in enumerate(blocks):
             sl = slice(12 + 3 * i, 15 + 3 * i)
             if x == "lever":
@@ -242,8 +244,10 @@ class InvariantEKF:
                 self.i_mnt = sl
             elif x == "gyro_scale":
                 self.i_sf = sl
-            else:
+            elif x == "accel_scale":
                 self.i_sa = sl
+            else:
+                self.i_nhl = sl
         self.noise = noise
         self.bg = np.zeros((K, 3))
         self.ba = np.zeros((K, 3))
@@ -251,6 +255,7 @@ class InvariantEKF:
         self.mount = np.zeros((K, 3))
         self.sf = np.zeros((K, 3))            # gyro scale factors (estimated with i_sf)
         self.sa = np.zeros((K, 3))            # accelerometer scale factors (with i_sa)
+        self.nhc_lever = np.tile(np.asarray(nhc_lever_arm, dtype=float).reshape(3), (K, 1))
         self.dx = np.zeros((K, self.n))       # error estimate not yet fed back (see feedback)
         #: None: full reset after every update; else a callable giving, for the time since
         #: the last feedback, the (n, n) fraction of the error estimate to feed back
@@ -265,7 +270,7 @@ class InvariantEKF:
         self._earth = None            # (lat, h, earth list) of the last pass (_Linearisation)
 
     _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "sf", "sa",
-               "dx", "w_last", "f_last", "ids")
+               "nhc_lever", "dx", "w_last", "f_last", "ids")
 
     @property
     def K(self) -> int:
@@ -475,15 +480,17 @@ class InvariantEKF:
 
     def corrected(self, i: int):
         """Filter i's state with the error estimate not yet fed back removed: (C, v, bg, ba,
-        lever, mount). With full feedback that is the state itself."""
+        lever, mount, nhc_lever). With full feedback that is the state itself."""
         dx = self.dx[i]
         C = self.C[i] @ so3_exp(-dx[IPHI])
         out = [C, self.v[i] - C @ dx[INU], self.bg[i] - dx[IBG], self.ba[i] - dx[IBA],
-               self.lever[i].copy(), self.mount[i].copy()]
+               self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy()]
         if self.i_lev is not None:
             out[4] = out[4] - dx[self.i_lev]
         if self.i_mnt is not None:
             out[5] = out[5] - dx[self.i_mnt]
+        if self.i_nhl is not None:
+            out[6] = out[6] - dx[self.i_nhl]
         return tuple(out)
 
     def feedback(self, dx) -> None:
@@ -500,6 +507,8 @@ class InvariantEKF:
             self.sf = self.sf - dx[:, self.i_sf]
         if self.i_sa is not None:
             self.sa = self.sa - dx[:, self.i_sa]
+        if self.i_nhl is not None:
+            self.nhc_lever = self.nhc_lever - dx[:, self.i_nhl]
 
     def velocity_model(self):
         """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state."""
@@ -540,11 +549,27 @@ class InvariantEKF:
         return self._apply((z - z_hat)[:, ok], H[:, ok], R[np.ix_(ok, ok)], nis_limit)
 
     def update_lateral(self, axis: int, sigma: float, nis_limit=None):
-        """Non-holonomic constraint: the body velocity along ``axis`` is zero (+- sigma)."""
-        vb = np.einsum("kji,kj->ki", self.C, self.v)
+        """Non-holonomic constraint: the body velocity along ``axis`` of the point at
+        ``nhc_lever`` (body axes, from the IMU: a car's rear-axle centre) is zero (+- sigma).
+        That velocity is ``C^T v + w_nb x l``, the rate term as the antenna's of
+        :meth:`velocity_model`, in body axes."""
+        C = self.C
+        vb = np.einsum("kji,kj->ki", C, self.v)
         H = np.zeros((self.K, 1, self.n))
         H[:, 0, IPHI] = -_skew(vb)[:, axis, :]
         H[:, 0, INU] = -_I3[axis]
+        lever = self.nhc_lever
+        if self.i_nhl is not None or lever.any():
+            w_ie, w_en = _w_in(self.v, self.lat, self.h)
+            a = np.einsum("kji,kj->ki", C, w_ie + w_en)
+            w_nb = self.w_last - a
+            vb = vb + _cross(w_nb, lever)
+            H[:, 0, IPHI] -= (_skew(lever) @ _skew(a))[:, axis, :]
+            H[:, 0, IBG] = -_skew(lever)[:, axis, :]
+            if self.i_nhl is not None:
+                H[:, 0, self.i_nhl] = -_skew(w_nb)[:, axis, :]
+            if self.i_sf is not None:
+                H[:, 0, self.i_sf] = (-_skew(lever) * self.w_last[:, None, :])[:, axis, :]
         return self._apply(-vb[:, axis:axis + 1], H, np.array([[sigma * sigma]]), nis_limit)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
