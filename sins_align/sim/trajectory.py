@@ -685,20 +685,32 @@ def _lean(speed, yaw_rate_dps):
 
 
 def car_city(lat_deg: float = 34.0, lon_deg: float = 108.0, height_m: float = 400.0,
-             yaw_deg: float = 75.0) -> Trajectory:
+             yaw_deg: float = 75.0, sideslip_deg: float = 0.0) -> Trajectory:
     """A car in town, 300 s: stands 15 s, drives off, speeds up and brakes (up to 18 m/s),
     turns left and right (90, 90, 60, 60, 90 deg), stops for 25 s and drives off again, and
     ends standing. The body squats and leans on its springs (pitch -0.15 deg per m/s^2,
     roll 0.35 deg per m/s^2 of centripetal acceleration: below 0.5 deg). Every command ramps
     over 1 s, so each speed and yaw change is exactly rate x duration; no sideslip (the
-    velocity stays along the heading). Final yaw 75 + 90 - 90 + 60 - 60 - 90 = -15 deg."""
+    velocity stays along the heading). Final yaw 75 + 90 - 90 + 60 - 60 - 90 = -15 deg.
+
+    ``sideslip_deg`` (deg per m/s^2 of centripetal acceleration; cars 0.2-0.7): in each turn
+    the velocity turns that much outward of the heading (the rear tyres' slip angle), built
+    up over the turn's first second and taken back over its last, a sideways velocity of
+    ``slip x a x speed`` (0.13 m/s at 0.5 deg per m/s^2, 12 m/s and 6 deg/s)."""
     def go(d, a):
         return Segment(d, accel=a, pitch=_squat(a))
 
     def turn(d, rate, speed):
-        return Segment(d, yaw_rate=rate, roll=_lean(speed, rate))
+        if not sideslip_deg:
+            return Segment(d, yaw_rate=rate, roll=_lean(speed, rate))
+        # outward: to the right (negative lateral speed) in a left turn
+        w = -np.sign(rate) * sideslip_deg * DEG * speed * abs(rate) * DEG * speed
+        roll = _lean(speed, rate)
+        return (Segment(1.0, yaw_rate=rate, roll=roll, lateral_accel=w),
+                Segment(d - 2.0, yaw_rate=rate, roll=roll),
+                Segment(1.0, yaw_rate=rate, roll=roll, lateral_accel=-w))
 
-    segs = (Segment(15.0),                      # stands
+    parts = (Segment(15.0),                     # stands
             go(6.0, 1.5),                       # drives off to 9 m/s
             Segment(12.0),
             go(5.0, 1.2),                       # to 15 m/s
@@ -726,6 +738,7 @@ def car_city(lat_deg: float = 34.0, lon_deg: float = 108.0, height_m: float = 40
             Segment(10.0),
             go(4.0, -1.5),                      # stops
             Segment(28.0))                      # stands
+    segs = tuple(x for p in parts for x in (p if isinstance(p, tuple) else (p,)))
     return Trajectory(segs, lat_deg, lon_deg, height_m, yaw_deg, 0.0, "car_city")
 
 

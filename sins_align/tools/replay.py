@@ -975,7 +975,8 @@ def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
                    max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle)
         if config.vehicle == "ground":
             out.update(nhc_lever_arm_m=list(config.nhc_lever_arm),
-                       nhc_lever_arm_std_m=config.nhc_lever_arm_std)
+                       nhc_lever_arm_std_m=config.nhc_lever_arm_std,
+                       nhc_slip_deg=config.nhc_slip_deg)
     return out
 
 

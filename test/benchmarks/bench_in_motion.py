@@ -109,6 +109,7 @@ class Scenario:
     cfg: dict = field(default_factory=dict)
     live: bool = False                    # GNSS given at its arrival time (late)
     t_rms: float = 100.0
+    preset_kw: dict = field(default_factory=dict)   # the trajectory preset's arguments
 
 
 SCENARIOS = (
@@ -119,6 +120,9 @@ SCENARIOS = (
     Scenario("car_city/ground", "car_city", CAR_MEMS, cfg=dict(vehicle="ground", nhc_axis=1)),
     # the IMU 1.5 m ahead of the rear axle (a centre console): sideways yaw rate x 1.5 m
     Scenario("car_city/ground+axle", "car_city", CAR_MEMS, sim=dict(imu_position=(1.5, 0, 0)),
+             cfg=dict(vehicle="ground", nhc_axis=1)),
+    # tyre sideslip: the velocity 0.5 deg outward per m/s^2 in the turns (up to 0.13 m/s)
+    Scenario("car_city/ground+slip", "car_city", CAR_MEMS, preset_kw=dict(sideslip_deg=0.5),
              cfg=dict(vehicle="ground", nhc_axis=1)),
     Scenario("ship/lever12", "ship_under_way", "navigation",
              sim=dict(lever_arm=(-5.0, 3.0, 11.0)), cfg=dict(vehicle="marine")),
@@ -144,7 +148,7 @@ def select(patterns: str | None) -> list[Scenario]:
 
 def setup(sc: Scenario, seed: int, gnss_rate: float = 10.0):
     """(simulated run, MotionConfig) of a scenario."""
-    traj = PRESETS[sc.preset]()
+    traj = PRESETS[sc.preset](**sc.preset_kw)
     sim = dict(sc.sim)
     lever = sim.pop("lever_arm", (0.0, 0.0, 0.0))
     r = simulate_trajectory(traj, 100.0, sc.specs, seed=seed, gnss_rate=gnss_rate,

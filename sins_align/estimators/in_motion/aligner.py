@@ -593,8 +593,9 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self._apply(item, t_now)
                 self._applied.append(item)
             if self._next_nhc is not None and self._next_nhc <= t_now:
-                self._weigh(t_now, *self.ekf.update_lateral(c.nhc_axis, c.nhc_noise,
-                                                            c.nis_inflate), 1)
+                self._weigh(t_now, *self.ekf.update_lateral(
+                    c.nhc_axis, c.nhc_noise, c.nis_inflate, slip=c.nhc_slip_deg * DEG,
+                    slip_updates=max(1.0, c.nhc_slip_time / c.nhc_period)), 1)
                 self.events["nhc"] += 1
                 self._next_nhc = t_now + c.nhc_period
             if e < n:

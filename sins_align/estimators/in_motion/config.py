@@ -43,6 +43,11 @@ class MotionConfig:
         velocity has no sideways component (a car's rear-axle centre). An IMU ahead of the
         rear axle moves sideways at yaw rate x distance in every turn (0.24 m/s at 9 deg/s
         and 1.5 m); the constraint is applied at that point.
+    nhc_slip_deg : deg of tyre sideslip per m/s^2 of lateral acceleration, a bound (typical
+        cars 0.2-0.7): in turns the constraint's noise grows to cover a sideways velocity of
+        ``slip x a_lat x speed`` lasting ``nhc_slip_time`` s (0: the constraint holds exactly
+        in turns too, within nhc_noise).
+    nhc_slip_time : s — how long a sideslip lasts (about a turn).
     nhc_lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (3 more
         states, observable in turns; in straight driving it does not matter). The default
         2 m covers an IMU anywhere in a car with the default (0, 0, 0); 0 takes
@@ -95,6 +100,8 @@ class MotionConfig:
     nhc_period: float = 0.1
     nhc_lever_arm: tuple = (0.0, 0.0, 0.0)
     nhc_lever_arm_std: float = 2.0
+    nhc_slip_deg: float = 1.0
+    nhc_slip_time: float = 3.0
     initial_rpy_deg: tuple | None = None
     initial_heading_std_deg: float = 180.0
     heading_hypotheses: int = 12
@@ -155,11 +162,13 @@ class MotionConfig:
                 raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
         for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m",
                      "mounting_std_deg", "gyro_scale_std", "accel_scale_std",
-                     "nhc_lever_arm_std"):
+                     "nhc_lever_arm_std", "nhc_slip_deg", "nhc_slip_time"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x)):
                 raise ValueError(f"{name} must be finite, got {x!r}")
         if min(self.lever_arm_std, self.max_measurement_lag, self.mounting_std_deg,
-               self.gyro_scale_std, self.accel_scale_std, self.nhc_lever_arm_std) < 0:
-            raise ValueError("lever_arm_std, nhc_lever_arm_std, max_measurement_lag, "
-                             "mounting_std_deg and the scale-factor stds must be >= 0")
+               self.gyro_scale_std, self.accel_scale_std, self.nhc_lever_arm_std,
+               self.nhc_slip_deg, self.nhc_slip_time) < 0:
+            raise ValueError("lever_arm_std, nhc_lever_arm_std, nhc_slip_deg, nhc_slip_time, "
+                             "max_measurement_lag, mounting_std_deg and the scale-factor stds "
+                             "must be >= 0")

@@ -548,11 +548,18 @@ class InvariantEKF:
             return self._apply(z - z_hat, H, R, nis_limit)
         return self._apply((z - z_hat)[:, ok], H[:, ok], R[np.ix_(ok, ok)], nis_limit)
 
-    def update_lateral(self, axis: int, sigma: float, nis_limit=None):
+    def update_lateral(self, axis: int, sigma: float, nis_limit=None, slip: float = 0.0,
+                       slip_updates: float = 1.0):
         """Non-holonomic constraint: the body velocity along ``axis`` of the point at
         ``nhc_lever`` (body axes, from the IMU: a car's rear-axle centre) is zero (+- sigma).
         That velocity is ``C^T v + w_nb x l``, the rate term as the antenna's of
-        :meth:`velocity_model`, in body axes."""
+        :meth:`velocity_model`, in body axes.
+
+        ``slip`` (rad per m/s^2): a tyre's sideslip angle per m/s^2 of lateral acceleration
+        (a bound). In a turn the lateral velocity is not zero but about ``slip a_lat u`` (u
+        the forward speed), for the whole turn: the noise gets that, times the square root of
+        ``slip_updates`` (how many updates it lasts), so that the updates of one turn together
+        claim no more than one. Each filter of the bank takes its own speed and rate."""
         C = self.C
         vb = np.einsum("kji,kj->ki", C, self.v)
         H = np.zeros((self.K, 1, self.n))
@@ -570,7 +577,15 @@ class InvariantEKF:
                 H[:, 0, self.i_nhl] = -_skew(w_nb)[:, axis, :]
             if self.i_sf is not None:
                 H[:, 0, self.i_sf] = (-_skew(lever) * self.w_last[:, None, :])[:, axis, :]
-        return self._apply(-vb[:, axis:axis + 1], H, np.array([[sigma * sigma]]), nis_limit)
+        R = np.array([[sigma * sigma]])
+        if slip > 0.0:
+            w_ie, w_en = _w_in(self.v, self.lat, self.h)
+            w_nb = self.w_last - np.einsum("kji,kj->ki", C, w_ie + w_en)
+            vc = np.einsum("kji,kj->ki", C, self.v)
+            a_lat = np.abs(_cross(w_nb, vc)[:, axis])
+            u = np.linalg.norm(vc, axis=1)
+            R = (sigma * sigma + slip_updates * (slip * a_lat * u) ** 2)[:, None, None]
+        return self._apply(-vb[:, axis:axis + 1], H, R, nis_limit)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
         """Attitude of a master INS: ``C_ref = C exp(-mu x) exp(n x)``, with ``mu`` the
