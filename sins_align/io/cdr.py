@@ -555,3 +555,44 @@ def _norm(x):
     if isinstance(x, (list, tuple)):
         return tuple(_norm(v) for v in x)
     return x
+
+
+def imu_with_orientations(buf: np.ndarray, starts: np.ndarray, sizes: np.ndarray,
+                          values: np.ndarray) -> list:
+    """:meth:`ImuLayout.with_orientation` for many messages at once: message ``i``
+    (``buf[starts[i]:starts[i] + sizes[i]]``) with ``values[i]`` (13 numbers) written in,
+    as bytes; None for a message without an :class:`ImuLayout` (build it another way).
+    Messages of one size and frame_id are written with one numpy assignment each field."""
+    values = np.ascontiguousarray(values, "<f8")
+    n = len(starts)
+    if values.shape != (n, ORIENTATION_COV.stop):
+        raise ValueError(f"expected ({n}, {ORIENTATION_COV.stop}) values, got {values.shape}")
+    out: list = [None] * n
+    if n == 0:
+        return out
+    starts = np.asarray(starts, np.int64)
+    sizes = np.asarray(sizes, np.int64)
+    for size in np.unique(sizes).tolist():
+        idx = np.flatnonzero(sizes == size)
+        rows = np.array(message_rows(buf, starts[idx], size))       # a copy to write into
+        lay = ImuLayout.of(rows[0].tobytes())
+        ok = np.zeros(len(idx), dtype=bool)
+        if lay is not None:
+            head = np.frombuffer(CDR_LE + b"\0" * 8 + lay.head, np.uint8)
+            ok = (rows[:, :4] == head[:4]).all(1) & (rows[:, 12:12 + len(lay.head)]
+                                                     == head[12:]).all(1)
+            rows[:, 12:lay.floats] = np.frombuffer(lay._prefix, np.uint8)
+            rows[:, lay.floats:lay.floats + values.shape[1] * 8] = \
+                values[idx].view(np.uint8).reshape(len(idx), -1)
+            data = rows.tobytes()
+            for k, i in enumerate(idx.tolist()):
+                if ok[k]:
+                    out[i] = data[k * size:(k + 1) * size]
+        for k in np.flatnonzero(~ok).tolist():          # another frame_id, or no layout
+            i = int(idx[k])
+            raw = buf[starts[i]:starts[i] + size].tobytes()
+            one = ImuLayout.of(raw)
+            if one is not None:
+                out[i] = one.with_orientation(raw, values[i])
+    return out
+
