@@ -135,3 +135,26 @@ def test_block_output_reading(tmp_path, storage):
     assert sess.reading[0] == ("mcap-numpy" if storage == "mcap" else "sqlite3-bulk") \
         or sess.reading[0] == "rosbags"
     assert len([1 for t, _, _ in _decoded(tmp_path / "o") if t == "/imu/data"]) == 500
+
+
+@pytest.mark.parametrize("frame", ["", "imu", "imu_link", "a_longer_frame_name_x"])
+def test_vector3_stamped_cdr_is_rosbags_serialisation(frame):
+    from sins_align.io.cdr import vector3_stamped_cdr
+
+    M = Messages()
+    xyz = (1.5, -2.25e-7, 359.999)
+    assert vector3_stamped_cdr(1700000000, 123456789, frame, xyz) == M.serialize(
+        M.vector3_stamped(M.header(1700000000, 123456789, frame), xyz))
+
+
+@pytest.mark.parametrize("frame", ["", "imu", "imu_lin"])
+def test_diagnostic_array_cdr_is_rosbags_serialisation(frame):
+    from sins_align.io.cdr import diagnostic_array_cdr
+
+    M = Messages()
+    for statuses in ([], [(1, "n", "", frame, [])],
+                     [(2, "align_node: alignment", "fault: ü", frame,
+                       [("state", "aligned"), ("", "x"), ("elapsed_s", "12.345")])],
+                     [(0, "a", "bc", "def", [("k", "v")]), (3, "", "x", "", [("ab", "")])]):
+        assert diagnostic_array_cdr(12, 345, frame, statuses) == M.serialize(
+            M.diagnostic_array(M.header(12, 345, frame), statuses)), statuses

@@ -596,3 +596,41 @@ def imu_with_orientations(buf: np.ndarray, starts: np.ndarray, sizes: np.ndarray
                 out[i] = one.with_orientation(raw, values[i])
     return out
 
+
+def vector3_stamped_cdr(sec: int, nanosec: int, frame_id: str, xyz) -> bytes:
+    """A ``geometry_msgs/Vector3Stamped`` in ROS 2 CDR (little-endian), as rosbags and rclpy
+    serialise it: stamp, frame_id (length with its NUL, zero padding to 8 from byte 4), then
+    the three float64."""
+    name = frame_id.encode()
+    head = _STAMP.pack(int(sec), int(nanosec)) + _U4.pack(len(name) + 1) + name + b"\0"
+    return CDR_LE + head + bytes(-len(head) % 8) + _VEC3.pack(*map(float, xyz))
+
+
+def diagnostic_array_cdr(sec: int, nanosec: int, frame_id: str, statuses) -> bytes:
+    """A ``diagnostic_msgs/DiagnosticArray`` in ROS 2 CDR (little-endian), as rosbags and
+    rclpy serialise it; ``statuses``: (level, name, message, hardware_id, [(key, value)])."""
+    out = bytearray(CDR_LE)
+
+    def string(x: str):
+        b = x.encode()
+        out.extend(bytes(-(len(out) - 4) % 4))
+        out.extend(_U4.pack(len(b) + 1))
+        out.extend(b)
+        out.append(0)
+
+    out.extend(_STAMP.pack(int(sec), int(nanosec)))
+    string(frame_id)
+    out.extend(bytes(-(len(out) - 4) % 4))
+    out.extend(_U4.pack(len(statuses)))
+    for level, name, message, hw, values in statuses:
+        out.append(int(level) & 0xFF)
+        string(name)
+        string(message)
+        string(hw)
+        out.extend(bytes(-(len(out) - 4) % 4))
+        out.extend(_U4.pack(len(values)))
+        for k, v in values:
+            string(k)
+            string(v)
+    return bytes(out)
+

@@ -95,7 +95,8 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  read_message_chunks, read_messages)
 from sins_align.io.fastbag import FastBag, open_fast
 from sins_align.io.cdr import (IMU_TYPE, ImuBatch, ImuLayout, decode_imu_array,
-                               decode_imu_batch, imu_with_orientations, reader_imu_layout)
+                               decode_imu_batch, imu_with_orientations, reader_imu_layout,
+                               diagnostic_array_cdr, vector3_stamped_cdr)
 from sins_align.estimators.quasi_static import AlignConfig
 from sins_align.estimators.session import AlignmentSession
 from sins_align.ros.outputs import (StampClock, bias_estimates, euler_deg, imu_output,
@@ -662,8 +663,7 @@ class ReplaySession:
             for j, r in zip(eu.tolist(), rpy):
                 h = header_at(j)
                 if h is not None:
-                    out.append((j, 2, self.c_euler, m.serialize(m.vector3_stamped(
-                        m.header(*h), r))))
+                    out.append((j, 2, self.c_euler, vector3_stamped_cdr(*h, r)))
         # diagnostics at the 1 Hz ticks, from the estimator's state after their sample
         ri = 0
         resets, reason = self.session.resets, self.session.last_reset_reason
@@ -679,10 +679,12 @@ class ReplaySession:
                 h[2] if h else "")))
         self._reset_reason = self.session.last_reset_reason
         out.sort(key=lambda x: (x[0], x[1]))
-        write, c_imu = self.writer.write, self.c_imu
-        for j, _, conn, data in out:
-            write(conn, ns_l[j], data)
-        del c_imu
+        if hasattr(self.writer, "write_many"):
+            self.writer.write_many([x[2] for x in out], [ns_l[x[0]] for x in out],
+                                   [x[3] for x in out])
+        else:
+            for j, _, conn, data in out:
+                self.writer.write(conn, ns_l[j], data)
         self.samples += n
         self.last_ns = int(ns[-1])
         if len(acc_idx):
@@ -751,7 +753,6 @@ class ReplaySession:
         """:meth:`_publish_diagnostics`'s message (quasi-static estimator) from a view of the
         estimator after the sample (its ``view()``), the samples counted then, the
         restarts then and the frame of the last accepted sample."""
-        m = self.msgs
         rate = None
         if self._diag_prev is not None and ns > self._diag_prev[0]:
             rate = (samples - self._diag_prev[1]) / ((ns - self._diag_prev[0]) / NS)
@@ -759,8 +760,7 @@ class ReplaySession:
         level, text, values, self._rejected_seen = node_diagnostics(
             view, rate, self._rejected_seen, resets, reason)
         sec, nsec = divmod(ns, NS)
-        return m.serialize(m.diagnostic_array(m.header(sec, nsec, frame),
-                                              [(level, DIAG_NAME, text, frame, values)]))
+        return diagnostic_array_cdr(sec, nsec, frame, [(level, DIAG_NAME, text, frame, values)])
 
     def _publish_diagnostics(self, ns: int):
         """align_node's diagnostics, with data time for the rate and the stamp."""
@@ -1120,7 +1120,7 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
     t_wall = time.perf_counter()
     motion = reference is not None and reference.enabled
     # the block path's usual bags open without rosbags (its import is most of a cold start)
-    reader = (open_fast(bag) if fast_mcap and not per_sample and output is None
+    reader = (open_fast(bag) if fast_mcap and not per_sample and bytes_output
               and not truth_topic and not motion else None)
     if reader is None:
         reader = open_reader(bag)
@@ -1134,7 +1134,7 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
         block = (not per_sample and output is None and not truth_conns
                  and layout is not None)
         if output is not None:
-            writer = open_writer(Path(output), "mcap", "zstd")
+            writer = open_writer(Path(output), "mcap", "zstd", bulk=True)
         if csv_path is not None:
             csv_file = open(csv_path, "w", newline="", encoding="utf-8")
         session = ReplaySession(config, writer=writer, csv_file=csv_file,
