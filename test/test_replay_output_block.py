@@ -158,3 +158,16 @@ def test_diagnostic_array_cdr_is_rosbags_serialisation(frame):
                      [(0, "a", "bc", "def", [("k", "v")]), (3, "", "x", "", [("ab", "")])]):
         assert diagnostic_array_cdr(12, 345, frame, statuses) == M.serialize(
             M.diagnostic_array(M.header(12, 345, frame), statuses)), statuses
+
+
+def test_bool_cdr_and_definitions_are_rosbags():
+    from sins_align.io.bagio import typestore
+    from sins_align.io.msgdefs import DEFINITIONS
+
+    M = Messages()
+    for v in (False, True):
+        assert replay.BOOL_CDR[v] == bytes(M.serialize(M.bool(v)))
+    ts = typestore()
+    for t, (msgdef, rihs01) in DEFINITIONS.items():
+        assert ts.generate_msgdef(t, ros_version=2)[0] == msgdef
+        assert ts.hash_rihs01(t) == rihs01

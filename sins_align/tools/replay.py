@@ -94,6 +94,7 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  one_line, open_reader, open_writer, pyplot, qos_profile,
                                  read_message_chunks, read_messages)
 from sins_align.io.fastbag import FastBag, open_fast
+from sins_align.io.msgdefs import DEFINITIONS
 from sins_align.io.cdr import (IMU_TYPE, ImuBatch, ImuLayout, decode_imu_array,
                                decode_imu_batch, imu_with_orientations, reader_imu_layout,
                                diagnostic_array_cdr, vector3_stamped_cdr)
@@ -126,6 +127,8 @@ DIAG_PERIOD_NS = 1_000_000_000
 DIAG_NAME = f"{NODE_NAME}: alignment"
 
 TRUTH_TYPE = "geometry_msgs/msg/QuaternionStamped"
+#: std_msgs/Bool in ROS 2 CDR (little-endian), as rosbags serialises it (test_replay_output_block)
+BOOL_CDR = {False: b"\x00\x01\x00\x00\x00", True: b"\x00\x01\x00\x00\x01"}
 NS = 1_000_000_000
 
 CSV_COLUMNS = ("t", "qx", "qy", "qz", "qw", "roll", "pitch", "yaw", "heading",
@@ -407,7 +410,7 @@ class ReplaySession:
         self._last_velocity_ns: int | None = None
         #: the estimator estimates its biases (the in-motion one): reported in the summary
         self._has_biases = hasattr(self.al, "bias_gyro")
-        self.msgs = Messages() if writer is not None else None   # rosbags: only to write
+        self._msgs: Messages | None = None        # rosbags' messages, made when needed
         #: /imu/data from the input bytes (``on_imu``'s ``raw``); False: built by rosbags
         self.bytes_output = True
         self.out_layout: ImuLayout | None = None
@@ -440,18 +443,22 @@ class ReplaySession:
             self._csv = csv_mod.writer(csv_file, lineterminator="\n")
             self._csv.writerow(CSV_COLUMNS + (CSV_TRUTH_COLUMNS if with_truth else ()))
         if writer is not None:
-            st = self.msgs.store
-            self.c_imu = writer.add_connection(IMU_OUT_TOPIC, Messages.IMU, typestore=st,
-                                               offered_qos_profiles=[qos_profile()])
-            self.c_aligned = writer.add_connection(
-                ALIGNED_TOPIC, Messages.BOOL, typestore=st,
-                offered_qos_profiles=[qos_profile(transient_local=True, depth=1)])
-            self.c_euler = writer.add_connection(EULER_TOPIC, Messages.VECTOR3_STAMPED,
-                                                 typestore=st,
-                                                 offered_qos_profiles=[qos_profile()])
-            self.c_diag = writer.add_connection(DIAG_TOPIC, Messages.DIAGNOSTIC_ARRAY,
-                                                typestore=st,
-                                                offered_qos_profiles=[qos_profile()])
+            def connection(topic, msgtype, **qos):
+                msgdef, rihs01 = DEFINITIONS[msgtype]
+                return writer.add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01,
+                                             offered_qos_profiles=[qos_profile(**qos)])
+            self.c_imu = connection(IMU_OUT_TOPIC, Messages.IMU)
+            self.c_aligned = connection(ALIGNED_TOPIC, Messages.BOOL, transient_local=True,
+                                        depth=1)
+            self.c_euler = connection(EULER_TOPIC, Messages.VECTOR3_STAMPED)
+            self.c_diag = connection(DIAG_TOPIC, Messages.DIAGNOSTIC_ARRAY)
+
+    @property
+    def msgs(self) -> Messages:
+        """rosbags' message types (its typestore loads on first use)."""
+        if self._msgs is None:
+            self._msgs = Messages()
+        return self._msgs
 
     # -- input ---------------------------------------------------------------------------
     def add_references(self, items) -> None:
@@ -622,7 +629,6 @@ class ReplaySession:
         frames = batch.frame_id
         ns_l = ns.tolist()
         samples0 = self.samples
-        m = self.msgs
         out: list[tuple[int, int, Any, bytes]] = []        # (sample, order, connection, data)
         # /imu/data: the input's bytes with the orientation written in
         if len(acc_idx):
@@ -634,6 +640,7 @@ class ReplaySession:
             msgs = None
             for k, (j, data) in enumerate(zip(acc_idx.tolist(), datas)):
                 if data is None:            # no CDR layout recognised: built by rosbags
+                    m = self.msgs
                     if msgs is None:
                         msgs = list(batch.messages())
                     q = vals[k]
@@ -648,7 +655,7 @@ class ReplaySession:
         for j in self.session.flags_to_publish(st.aligned).tolist():
             value = bool(st.aligned[j])
             self.aligned_changes.append(((ns_l[j] - self.first_ns) / NS, value))
-            out.append((j, 1, self.c_aligned, m.serialize(m.bool(value))))
+            out.append((j, 1, self.c_aligned, BOOL_CDR[value]))
         prev_header = self.last_header
 
         def header_at(j):
