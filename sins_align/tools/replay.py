@@ -54,11 +54,16 @@ The bag is streamed: memory does not grow with its length (the estimator buffers
 ``backtrack_time`` seconds of samples; the plot keeps a decimated series). Two paths, same
 results (test_bag_tools: attitude to 1e-9 rad, identical counts, times and flag changes):
 
-- with ``--output`` or ``--truth-topic``, every message goes through
-  :meth:`ReplaySession.on_imu` in bag order, one by one, as the node takes it (the Imu
-  ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of :data:`READ_CHUNK`;
-  ``/imu/data`` is the input's bytes with the orientation written in, as the node
-  republishes);
+- with ``--truth-topic`` (or the in-motion estimator, or a non-ROS 2 Imu layout), every
+  message goes through :meth:`ReplaySession.on_imu` in bag order, one by one, as the node
+  takes it (the Imu ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of
+  :data:`READ_CHUNK`; ``/imu/data`` is the input's bytes with the orientation written in, as
+  the node republishes);
+- ``--output`` otherwise: :meth:`ReplaySession.on_imu_output_block`, blocks of messages with
+  the estimator's outputs after each sample and its diagnostics view at the 1 Hz samples
+  (:meth:`~sins_align.estimators.session.AlignmentSession.feed_block_states`), the node's
+  messages in its order written in bulk (:class:`sins_align.io.mcapwrite.BulkWriter`);
+  equal to the one-sample path to rounding (test_replay_output_block);
 - otherwise (summary, ``--csv``, ``--plot``) the usual rosbag2 bags are opened without
   rosbags (:mod:`sins_align.io.fastbag`) and the Imu topic is read in blocks
   (:class:`sins_align.io.bagio.TopicBlocks`: MCAP chunks parsed and sliced with numpy, sqlite3
