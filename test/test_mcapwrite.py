@@ -1,5 +1,5 @@
 """BulkWriter writes the file rosbags' own Writer writes for the same messages (byte for
-byte, the header's library name aside), through write and write_many in any mix, with
+byte, the header's library name and zstd level aside), through write and write_many in any mix, with
 and without zstd chunks, over several chunks; rosbags and the project's MCAP reader read it."""
 from __future__ import annotations
 
@@ -49,6 +49,7 @@ def _write(cls, path, msgs, compress, batches):
 @pytest.mark.parametrize("compress", [False, True])
 def test_bulk_writer_writes_rosbags_file(tmp_path, monkeypatch, compress):
     monkeypatch.setattr(BulkMcapStorage, "library", f"rosbags-{version('rosbags')}")
+    monkeypatch.setattr(BulkMcapStorage, "level", None)
     msgs = _messages(12000)
     batches = [1, 5000, 1, 1, 3000, 3997]
     for d in ("ref", "bulk"):

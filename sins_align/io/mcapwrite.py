@@ -6,8 +6,9 @@ rosbags' MCAP storage writer builds every message record with several small writ
 :class:`BulkWriter` is rosbags' ``Writer`` (connections, metadata.yaml, counts: all
 rosbags') whose MCAP storage, :class:`BulkMcapStorage`, writes the same file as rosbags'
 ``McapWriter`` (the same records, chunks closed at the same sizes, the same indexes and
-summary; only the header's library name differs, test_mcapwrite) and also takes a list of
-messages at once (:meth:`BulkWriter.write_many`): their record headers are built with
+summary; only the header's library name and the zstd level differ, test_mcapwrite) and
+also takes a list of messages at once (:meth:`BulkWriter.write_many`): their record
+headers are built with
 numpy and joined with the data in one call.
 """
 from __future__ import annotations
@@ -52,6 +53,9 @@ class BulkMcapStorage:
 
     #: the MCAP header's library field
     library = f"sins_align (rosbags-{version('rosbags')} layout)"
+    #: zstd level of the chunks (None: the library's default, as rosbags); 1 compresses
+    #: about twice as fast (replay --output: ~0.2 s of a 600 s 100 Hz bag), ~1 % larger
+    level: int | None = 1
 
     def __init__(self, path: Path, compression: CompressionMode):
         self.path = path / f"{path.name}.mcap"
@@ -135,7 +139,8 @@ class BulkMcapStorage:
 
     def _close_chunk(self):
         data = b"".join(self.parts)
-        comp = zstd.compress(data) if self.zstd else data
+        comp = (data if not self.zstd else zstd.compress(data) if self.level is None
+                else zstd.compress(data, level=self.level))
         name = _string("zstd" if self.zstd else "")
         body = (_U64.pack(self.c_start) + _U64.pack(self.c_end) + _U64.pack(len(data))
                 + _U32.pack(0) + name + _U64.pack(len(comp)))
