@@ -8,8 +8,7 @@ rosbags') whose MCAP storage, :class:`BulkMcapStorage`, writes the same file as 
 ``McapWriter`` (the same records, chunks closed at the same sizes, the same indexes and
 summary; only the header's library name and the zstd level differ, test_mcapwrite) and
 also takes a list of messages at once (:meth:`BulkWriter.write_many`): their record
-headers are built with
-numpy and joined with the data in one call.
+headers are built with numpy and joined with the data in one call.
 """
 from __future__ import annotations
 

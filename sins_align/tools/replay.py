@@ -690,13 +690,17 @@ class ReplaySession:
                 st.views[j], ns_l[j], samples0 + j + 1, resets, reason,
                 h[2] if h else "")))
         self._reset_reason = self.session.last_reset_reason
-        out.sort(key=lambda x: (x[0], x[1]))
+        # the node's order: by sample, then imu, aligned, euler, diagnostics
+        key = np.fromiter((4 * j + k for j, k, _, _ in out), np.int64, len(out))
+        order = np.argsort(key, kind="stable").tolist()
+        conns = [out[i][2] for i in order]
+        datas = [out[i][3] for i in order]
+        stamps = ns[key[order] // 4]
         if hasattr(self.writer, "write_many"):
-            self.writer.write_many([x[2] for x in out], [ns_l[x[0]] for x in out],
-                                   [x[3] for x in out])
+            self.writer.write_many(conns, stamps, datas)
         else:
-            for j, _, conn, data in out:
-                self.writer.write(conn, ns_l[j], data)
+            for conn, st_ns, data in zip(conns, stamps.tolist(), datas):
+                self.writer.write(conn, st_ns, data)
         self.samples += n
         self.last_ns = int(ns[-1])
         if len(acc_idx):
