@@ -9,7 +9,9 @@ orientation and its covariance may differ in the last bits: they are compared to
 (rad, and relative for the covariance); everything else (which messages, their topics,
 log times and order, every header, the angular velocity and acceleration fields and their
 covariances, the aligned flags, the diagnostics' levels, texts and values) must be equal,
-and the Euler angles to 1e-7 deg. Cases: a swaying base through coarse pass, backtrack and
+and the Euler angles to 1e-7 deg. (The diagnostics print the std to 6 decimals from the block
+path's covariance: a value on a rounding edge could in principle print one digit apart; it
+does not on these bags.) Cases: a swaying base through coarse pass, backtrack and
 fine pass; and an input with rejected samples (NaN, a spike), a gap and a restart (stamps
 jumping back).
 """
