@@ -1,7 +1,7 @@
-"""replay --output: /imu/data written from the input bytes (the orientation written in, as
-align_node republishes), the Imu topic read by the block path's reader, equals the messages
-read by rosbags and built and serialised by rosbags, byte for byte; every other topic and the
-order of the bag are unchanged."""
+"""replay --output, one-sample path: /imu/data written from the input bytes (the orientation
+written in, as align_node republishes) equals the messages built and serialised by rosbags,
+byte for byte; every other topic and the order of the bag are unchanged. (The default block
+path equals this one to rounding: test_replay_output_block.)"""
 from __future__ import annotations
 
 import pytest
@@ -32,10 +32,9 @@ def test_output_bag_from_input_bytes_equals_rosbags_serialisation(tmp_path, stor
         out[fast] = tmp_path / f"out_{fast}"
         # the reference: rosbags reads the bag and serialises every message
         s, sess = replay.replay(bag, cfg, output=out[fast], progress=False, bytes_output=fast,
-                                per_sample=not fast)
+                                per_sample=True)
         assert sess.samples == 3000 and (sess.out_layout is not None) == fast
-        assert sess.reading[0] == ("rosbags" if not fast or storage == "sqlite3" else
-                                   "mcap-numpy")
+        assert sess.reading[0] == "rosbags"
     a, b = _all(out[True]), _all(out[False])
     assert len([m for m in a if m[0] == "/imu/data"]) > 2900
     assert a == b

@@ -53,6 +53,8 @@ class AlignmentSession:
         self._record = record_flag_changes
         self._flag_changes: list[tuple[float | None, bool]] = []
         self._published: bool | None = None
+        #: restarts of the last :meth:`feed_block_states` call
+        self.block_restarts: list[tuple[int, int, str]] = []
         estimator.subscribe(self._event)
 
     def _event(self, event) -> None:
@@ -127,20 +129,27 @@ class AlignmentSession:
             k = b + 1
         return accepted
 
-    def feed_block_states(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, want=None):
+    def feed_block_states(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, want=None,
+                          views=None):
         """:meth:`feed_block` for an estimator with ``update_states`` (the quasi-static
         Aligner): the same samples and results, and the estimator's outputs after each
         sample (its ``SampleStates``; ``accepted`` marks the samples :meth:`feed` would
-        call accepted; ``want``: the samples whose outputs are needed, default all)."""
+        call accepted; ``want``: the samples whose outputs are needed, default all;
+        ``views``: the samples after which the estimator's ``view()`` is wanted).
+
+        :attr:`block_restarts` lists the restarts of the call as ``(sample index (-1:
+        before the first), resets, last_reset_reason)`` after each."""
         est = self.estimator
         n = len(t)
         from sins_align.estimators.quasi_static.aligner import SampleStates
 
         out = SampleStates.empty(n)
+        self.block_restarts: list[tuple[int, int, str]] = []
         if n == 0:
             return out
         if self._restart_request:
             self.restart(self._restart_request)
+            self.block_restarts.append((-1, self.resets, self.last_reset_reason))
         finite = np.isfinite(t)
         tl = est.t_last
         bound = np.maximum.accumulate(np.concatenate((
@@ -151,16 +160,23 @@ class AlignmentSession:
             if b > k:
                 self._back_run = 0
                 st = est.update_states(t[k:b], w[k:b], f[k:b],
-                                       None if want is None else want[k:b])
+                                       None if want is None else want[k:b],
+                                       None if views is None else views[k:b])
                 for name in ("accepted", "dcm", "covariance", "aligned", "started"):
                     getattr(out, name)[k:b] = getattr(st, name)
                 out.used += st.used
+                out.views.update((k + i, v) for i, v in st.views.items())
             if b < n:
+                resets = self.resets
                 out.accepted[b] = self.feed(float(t[b]), w[b], f[b])
+                if self.resets != resets:
+                    self.block_restarts.append((b, self.resets, self.last_reset_reason))
                 out.dcm[b] = est.dcm
                 out.covariance[b] = est.covariance
                 out.aligned[b] = est.aligned
                 out.started[b] = est.t_last is not None
+                if views is not None and views[b]:
+                    out.views[b] = est.view()
             k = b + 1
         return out
 
@@ -196,6 +212,22 @@ class AlignmentSession:
             return None
         self._published = value
         return value
+
+    def flags_to_publish(self, aligned: np.ndarray) -> np.ndarray:
+        """:meth:`flag_to_publish` after each sample of a block, given the flag after each
+        (``SampleStates.aligned``): the indices of the samples after which it is published."""
+        a = np.asarray(aligned, dtype=bool)
+        if len(a) == 0:
+            return np.empty(0, dtype=np.int64)
+        prev = np.empty(len(a), dtype=bool)
+        prev[1:] = a[:-1]
+        at = np.flatnonzero(a != prev)
+        if self._published is None or a[0] != self._published:
+            at = np.concatenate(([0], at[at > 0]))
+        else:
+            at = at[at > 0]
+        self._published = bool(a[-1])
+        return at
 
     def take_flag_changes(self) -> list[tuple[float | None, bool]]:
         """The changes of the aligned flag since the last call, oldest first:

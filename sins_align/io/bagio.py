@@ -329,16 +329,20 @@ def check_storage(storage: str, compression: str):
                        f"{', '.join(COMPRESSIONS)}")
 
 
-def open_writer(path: Path, storage: str = "mcap", compression: str = "none"):
+def open_writer(path: Path, storage: str = "mcap", compression: str = "none",
+                bulk: bool = False):
     """An open rosbag2 ``Writer`` (format version 9) at ``path`` (must not exist).
 
     ``compression='zstd'``: mcap compresses its chunks (storage mode, readable by Foxglove
-    and ros2 bag); sqlite3 compresses each message (rosbag2 'message' mode).
+    and ros2 bag); sqlite3 compresses each message (rosbag2 'message' mode). ``bulk``: a
+    :class:`sins_align.io.mcapwrite.BulkWriter` (the same file, plus ``write_many``).
     """
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
     check_storage(storage, compression)
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    if bulk:
+        from sins_align.io.mcapwrite import BulkWriter as Writer    # noqa: N814
     writer = Writer(path, version=9, storage_plugin=plugin)
     if compression == "zstd":
         mode = CompressionMode.STORAGE if storage == "mcap" else CompressionMode.MESSAGE

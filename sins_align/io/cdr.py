@@ -555,3 +555,82 @@ def _norm(x):
     if isinstance(x, (list, tuple)):
         return tuple(_norm(v) for v in x)
     return x
+
+
+def imu_with_orientations(buf: np.ndarray, starts: np.ndarray, sizes: np.ndarray,
+                          values: np.ndarray) -> list:
+    """:meth:`ImuLayout.with_orientation` for many messages at once: message ``i``
+    (``buf[starts[i]:starts[i] + sizes[i]]``) with ``values[i]`` (13 numbers) written in,
+    as bytes; None for a message without an :class:`ImuLayout` (build it another way).
+    Messages of one size and frame_id are written with one numpy assignment each field."""
+    values = np.ascontiguousarray(values, "<f8")
+    n = len(starts)
+    if values.shape != (n, ORIENTATION_COV.stop):
+        raise ValueError(f"expected ({n}, {ORIENTATION_COV.stop}) values, got {values.shape}")
+    out: list = [None] * n
+    if n == 0:
+        return out
+    starts = np.asarray(starts, np.int64)
+    sizes = np.asarray(sizes, np.int64)
+    for size in np.unique(sizes).tolist():
+        idx = np.flatnonzero(sizes == size)
+        rows = np.array(message_rows(buf, starts[idx], size))       # a copy to write into
+        lay = ImuLayout.of(rows[0].tobytes())
+        ok = np.zeros(len(idx), dtype=bool)
+        if lay is not None:
+            head = np.frombuffer(CDR_LE + b"\0" * 8 + lay.head, np.uint8)
+            ok = (rows[:, :4] == head[:4]).all(1) & (rows[:, 12:12 + len(lay.head)]
+                                                     == head[12:]).all(1)
+            rows[:, 12:lay.floats] = np.frombuffer(lay._prefix, np.uint8)
+            rows[:, lay.floats:lay.floats + values.shape[1] * 8] = \
+                values[idx].view(np.uint8).reshape(len(idx), -1)
+            data = rows.tobytes()
+            for k, i in enumerate(idx.tolist()):
+                if ok[k]:
+                    out[i] = data[k * size:(k + 1) * size]
+        for k in np.flatnonzero(~ok).tolist():          # another frame_id, or no layout
+            i = int(idx[k])
+            raw = buf[starts[i]:starts[i] + size].tobytes()
+            one = ImuLayout.of(raw)
+            if one is not None:
+                out[i] = one.with_orientation(raw, values[i])
+    return out
+
+
+def vector3_stamped_cdr(sec: int, nanosec: int, frame_id: str, xyz) -> bytes:
+    """A ``geometry_msgs/Vector3Stamped`` in ROS 2 CDR (little-endian), as rosbags and rclpy
+    serialise it: stamp, frame_id (length with its NUL, zero padding to 8 from byte 4), then
+    the three float64."""
+    name = frame_id.encode()
+    head = _STAMP.pack(int(sec), int(nanosec)) + _U4.pack(len(name) + 1) + name + b"\0"
+    return CDR_LE + head + bytes(-len(head) % 8) + _VEC3.pack(*map(float, xyz))
+
+
+def diagnostic_array_cdr(sec: int, nanosec: int, frame_id: str, statuses) -> bytes:
+    """A ``diagnostic_msgs/DiagnosticArray`` in ROS 2 CDR (little-endian), as rosbags and
+    rclpy serialise it; ``statuses``: (level, name, message, hardware_id, [(key, value)])."""
+    out = bytearray(CDR_LE)
+
+    def string(x: str):
+        b = x.encode()
+        out.extend(bytes(-(len(out) - 4) % 4))
+        out.extend(_U4.pack(len(b) + 1))
+        out.extend(b)
+        out.append(0)
+
+    out.extend(_STAMP.pack(int(sec), int(nanosec)))
+    string(frame_id)
+    out.extend(bytes(-(len(out) - 4) % 4))
+    out.extend(_U4.pack(len(statuses)))
+    for level, name, message, hw, values in statuses:
+        out.append(int(level) & 0xFF)
+        string(name)
+        string(message)
+        string(hw)
+        out.extend(bytes(-(len(out) - 4) % 4))
+        out.extend(_U4.pack(len(values)))
+        for k, v in values:
+            string(k)
+            string(v)
+    return bytes(out)
+

@@ -54,11 +54,16 @@ The bag is streamed: memory does not grow with its length (the estimator buffers
 ``backtrack_time`` seconds of samples; the plot keeps a decimated series). Two paths, same
 results (test_bag_tools: attitude to 1e-9 rad, identical counts, times and flag changes):
 
-- with ``--output`` or ``--truth-topic``, every message goes through
-  :meth:`ReplaySession.on_imu` in bag order, one by one, as the node takes it (the Imu
-  ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of :data:`READ_CHUNK`;
-  ``/imu/data`` is the input's bytes with the orientation written in, as the node
-  republishes);
+- with ``--truth-topic`` (or the in-motion estimator, or a non-ROS 2 Imu layout), every
+  message goes through :meth:`ReplaySession.on_imu` in bag order, one by one, as the node
+  takes it (the Imu ones decoded in bulk by :mod:`sins_align.io.cdr` in chunks of
+  :data:`READ_CHUNK`; ``/imu/data`` is the input's bytes with the orientation written in, as
+  the node republishes);
+- ``--output`` otherwise: :meth:`ReplaySession.on_imu_output_block`, blocks of messages with
+  the estimator's outputs after each sample and its diagnostics view at the 1 Hz samples
+  (:meth:`~sins_align.estimators.session.AlignmentSession.feed_block_states`), the node's
+  messages in its order written in bulk (:class:`sins_align.io.mcapwrite.BulkWriter`);
+  equal to the one-sample path to rounding (test_replay_output_block);
 - otherwise (summary, ``--csv``, ``--plot``) the usual rosbag2 bags are opened without
   rosbags (:mod:`sins_align.io.fastbag`) and the Imu topic is read in blocks
   (:class:`sins_align.io.bagio.TopicBlocks`: MCAP chunks parsed and sliced with numpy, sqlite3
@@ -94,8 +99,10 @@ from sins_align.io.bagio import (AtomicOutput, CliError, Messages, Progress, Top
                                  one_line, open_reader, open_writer, pyplot, qos_profile,
                                  read_message_chunks, read_messages)
 from sins_align.io.fastbag import FastBag, open_fast
+from sins_align.io.msgdefs import DEFINITIONS
 from sins_align.io.cdr import (IMU_TYPE, ImuBatch, ImuLayout, decode_imu_array,
-                               decode_imu_batch, reader_imu_layout)
+                               decode_imu_batch, imu_with_orientations, reader_imu_layout,
+                               diagnostic_array_cdr, vector3_stamped_cdr)
 from sins_align.estimators.quasi_static import AlignConfig
 from sins_align.estimators.session import AlignmentSession
 from sins_align.ros.outputs import (StampClock, bias_estimates, euler_deg, imu_output,
@@ -125,6 +132,8 @@ DIAG_PERIOD_NS = 1_000_000_000
 DIAG_NAME = f"{NODE_NAME}: alignment"
 
 TRUTH_TYPE = "geometry_msgs/msg/QuaternionStamped"
+#: std_msgs/Bool in ROS 2 CDR (little-endian), as rosbags serialises it (test_replay_output_block)
+BOOL_CDR = {False: b"\x00\x01\x00\x00\x00", True: b"\x00\x01\x00\x00\x01"}
 NS = 1_000_000_000
 
 CSV_COLUMNS = ("t", "qx", "qy", "qz", "qw", "roll", "pitch", "yaw", "heading",
@@ -406,7 +415,7 @@ class ReplaySession:
         self._last_velocity_ns: int | None = None
         #: the estimator estimates its biases (the in-motion one): reported in the summary
         self._has_biases = hasattr(self.al, "bias_gyro")
-        self.msgs = Messages() if writer is not None else None   # rosbags: only to write
+        self._msgs: Messages | None = None        # rosbags' messages, made when needed
         #: /imu/data from the input bytes (``on_imu``'s ``raw``); False: built by rosbags
         self.bytes_output = True
         self.out_layout: ImuLayout | None = None
@@ -423,6 +432,7 @@ class ReplaySession:
         self.last_frame_id = ""                                 # of the last accepted sample
         self._aligned_pub: bool | None = None    # the block path's last flag change
         self._rejected_seen = 0
+        self._reset_reason = ""        # the session's last_reset_reason after the last block
         self._diag_prev: tuple[int, int] | None = None     # (ns, samples) at the last diag
         self.aligned_changes: list[tuple[float, bool]] = []
         self.final_error: np.ndarray | None = None
@@ -438,18 +448,22 @@ class ReplaySession:
             self._csv = csv_mod.writer(csv_file, lineterminator="\n")
             self._csv.writerow(CSV_COLUMNS + (CSV_TRUTH_COLUMNS if with_truth else ()))
         if writer is not None:
-            st = self.msgs.store
-            self.c_imu = writer.add_connection(IMU_OUT_TOPIC, Messages.IMU, typestore=st,
-                                               offered_qos_profiles=[qos_profile()])
-            self.c_aligned = writer.add_connection(
-                ALIGNED_TOPIC, Messages.BOOL, typestore=st,
-                offered_qos_profiles=[qos_profile(transient_local=True, depth=1)])
-            self.c_euler = writer.add_connection(EULER_TOPIC, Messages.VECTOR3_STAMPED,
-                                                 typestore=st,
-                                                 offered_qos_profiles=[qos_profile()])
-            self.c_diag = writer.add_connection(DIAG_TOPIC, Messages.DIAGNOSTIC_ARRAY,
-                                                typestore=st,
-                                                offered_qos_profiles=[qos_profile()])
+            def connection(topic, msgtype, **qos):
+                msgdef, rihs01 = DEFINITIONS[msgtype]
+                return writer.add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01,
+                                             offered_qos_profiles=[qos_profile(**qos)])
+            self.c_imu = connection(IMU_OUT_TOPIC, Messages.IMU)
+            self.c_aligned = connection(ALIGNED_TOPIC, Messages.BOOL, transient_local=True,
+                                        depth=1)
+            self.c_euler = connection(EULER_TOPIC, Messages.VECTOR3_STAMPED)
+            self.c_diag = connection(DIAG_TOPIC, Messages.DIAGNOSTIC_ARRAY)
+
+    @property
+    def msgs(self) -> Messages:
+        """rosbags' message types (its typestore loads on first use)."""
+        if self._msgs is None:
+            self._msgs = Messages()
+        return self._msgs
 
     # -- input ---------------------------------------------------------------------------
     def add_references(self, items) -> None:
@@ -590,6 +604,112 @@ class ReplaySession:
             elif rows and due[b - 1]:
                 self._row(self.last_ns)
 
+    def on_imu_output_block(self, batch: ImuBatch, mb):
+        """Imu messages decoded in bulk (``batch``) with their bytes (``mb``: a
+        :class:`~sins_align.io.bagio.MessageBlock`), in bag order, for ``--output``: what
+        :meth:`on_imu` writes for each, in the same order (per sample: /imu/data if
+        accepted, the aligned flag if changed, the Euler angles, the diagnostics), from the
+        estimator's outputs after each sample
+        (:meth:`~sins_align.estimators.session.AlignmentSession.feed_block_states`, whose
+        ``views`` give the diagnostics their estimator state at their sample). Needs the
+        quasi-static Aligner (``update_states``) and ROS 2 messages."""
+        n = len(batch)
+        if n == 0:
+            return
+        sec, nsec = batch.sec, batch.nanosec
+        ns = sec * NS + nsec
+        if self.clock.epoch is None:
+            self.clock(int(sec[0]), int(nsec[0]))
+        t = (sec - self.clock.epoch).astype(np.float64) + nsec.astype(np.float64) * 1e-9
+        if self.first_ns is None:
+            self.first_ns = int(ns[0])
+        euler_due = self.euler_tick.due_block(ns)
+        diag_due = self.diag_tick.due_block(ns)
+        st = self.session.feed_block_states(t, np.ascontiguousarray(batch.gyro),
+                                            np.ascontiguousarray(batch.accel), None, diag_due)
+        restarts = self.session.block_restarts
+        acc = st.accepted
+        acc_idx = np.flatnonzero(acc)
+        last_acc = np.maximum.accumulate(np.where(acc, np.arange(n), -1))
+        frames = batch.frame_id
+        ns_l = ns.tolist()
+        samples0 = self.samples
+        out: list[tuple[int, int, Any, bytes]] = []        # (sample, order, connection, data)
+        # /imu/data: the input's bytes with the orientation written in
+        if len(acc_idx):
+            C = st.dcm[acc_idx]
+            vals = np.concatenate((quat_from_dcm(C), st.covariance[acc_idx].reshape(-1, 9)), 1)
+            datas = imu_with_orientations(mb.buf, mb.starts[acc_idx], mb.sizes[acc_idx], vals)
+            if self.out_layout is None:
+                self.out_layout = ImuLayout.of(mb.raw(int(acc_idx[0])))
+            msgs = None
+            for k, (j, data) in enumerate(zip(acc_idx.tolist(), datas)):
+                if data is None:            # no CDR layout recognised: built by rosbags
+                    m = self.msgs
+                    if msgs is None:
+                        msgs = list(batch.messages())
+                    q = vals[k]
+                    msg = msgs[j]
+                    w, a = msg.angular_velocity, msg.linear_acceleration
+                    data = m.serialize(m.imu(
+                        m.header(int(sec[j]), int(nsec[j]), frames[j]), q[:4], q[4:],
+                        (w.x, w.y, w.z), msg.angular_velocity_covariance, (a.x, a.y, a.z),
+                        msg.linear_acceleration_covariance))
+                out.append((j, 0, self.c_imu, data))
+        # the aligned flag, when it changes
+        for j in self.session.flags_to_publish(st.aligned).tolist():
+            value = bool(st.aligned[j])
+            self.aligned_changes.append(((ns_l[j] - self.first_ns) / NS, value))
+            out.append((j, 1, self.c_aligned, BOOL_CDR[value]))
+        prev_header = self.last_header
+
+        def header_at(j):
+            i = int(last_acc[j])
+            if i < 0:
+                return prev_header
+            return (int(sec[i]), int(nsec[i]), frames[i])
+        # Euler angles at the 10 Hz ticks, once a sample was accepted and time runs
+        eu = np.flatnonzero(euler_due & st.started)
+        if len(eu):
+            rpy = (rpy_from_dcm(st.dcm[eu]) / DEG).tolist()
+            for j, r in zip(eu.tolist(), rpy):
+                h = header_at(j)
+                if h is not None:
+                    out.append((j, 2, self.c_euler, vector3_stamped_cdr(*h, r)))
+        # diagnostics at the 1 Hz ticks, from the estimator's state after their sample
+        ri = 0
+        resets, reason = self.session.resets, self.session.last_reset_reason
+        if restarts:        # the values before the first restart of the block
+            resets, reason = restarts[0][1] - 1, self._reset_reason
+        for j in np.flatnonzero(diag_due).tolist():
+            while ri < len(restarts) and restarts[ri][0] <= j:
+                resets, reason = restarts[ri][1], restarts[ri][2]
+                ri += 1
+            h = header_at(j)
+            out.append((j, 3, self.c_diag, self._diagnostics_bytes(
+                st.views[j], ns_l[j], samples0 + j + 1, resets, reason,
+                h[2] if h else "")))
+        self._reset_reason = self.session.last_reset_reason
+        # the node's order: by sample, then imu, aligned, euler, diagnostics
+        key = np.fromiter((4 * j + k for j, k, _, _ in out), np.int64, len(out))
+        order = np.argsort(key, kind="stable").tolist()
+        conns = [out[i][2] for i in order]
+        datas = [out[i][3] for i in order]
+        stamps = ns[key[order] // 4]
+        if hasattr(self.writer, "write_many"):
+            self.writer.write_many(conns, stamps, datas)
+        else:
+            for conn, st_ns, data in zip(conns, stamps.tolist(), datas):
+                self.writer.write(conn, st_ns, data)
+        self.samples += n
+        self.last_ns = int(ns[-1])
+        if len(acc_idx):
+            i = int(acc_idx[-1])
+            self.last_header = (int(sec[i]), int(nsec[i]), frames[i])
+            self.last_frame_id = frames[i]
+        if self._csv is not None or self.series is not None:
+            self._rows_from_states(st, np.flatnonzero(euler_due), ns)
+
     def _publish_flips(self, flips, before: bool, t: np.ndarray, ns: np.ndarray):
         """aligned_changes of one update call, as :meth:`_publish_aligned` after each sample."""
         events: list[tuple[int, bool]] = []        # (sample, flag after it)
@@ -643,6 +763,20 @@ class ReplaySession:
         self.aligned_changes.append(((ns - self.first_ns) / NS, value))
         if self.writer is not None:
             self.writer.write(self.c_aligned, ns, self.msgs.serialize(self.msgs.bool(value)))
+
+    def _diagnostics_bytes(self, view, ns: int, samples: int, resets: int, reason: str,
+                           frame: str) -> bytes:
+        """:meth:`_publish_diagnostics`'s message (quasi-static estimator) from a view of the
+        estimator after the sample (its ``view()``), the samples counted then, the
+        restarts then and the frame of the last accepted sample."""
+        rate = None
+        if self._diag_prev is not None and ns > self._diag_prev[0]:
+            rate = (samples - self._diag_prev[1]) / ((ns - self._diag_prev[0]) / NS)
+        self._diag_prev = (ns, samples)
+        level, text, values, self._rejected_seen = node_diagnostics(
+            view, rate, self._rejected_seen, resets, reason)
+        sec, nsec = divmod(ns, NS)
+        return diagnostic_array_cdr(sec, nsec, frame, [(level, DIAG_NAME, text, frame, values)])
 
     def _publish_diagnostics(self, ns: int):
         """align_node's diagnostics, with data time for the rate and the stamp."""
@@ -1009,7 +1143,7 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
     t_wall = time.perf_counter()
     motion = reference is not None and reference.enabled
     # the block path's usual bags open without rosbags (its import is most of a cold start)
-    reader = (open_fast(bag) if fast_mcap and not per_sample and output is None
+    reader = (open_fast(bag) if fast_mcap and not per_sample and bytes_output
               and not truth_topic and not motion else None)
     if reader is None:
         reader = open_reader(bag)
@@ -1023,7 +1157,7 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
         block = (not per_sample and output is None and not truth_conns
                  and layout is not None)
         if output is not None:
-            writer = open_writer(Path(output), "mcap", "zstd")
+            writer = open_writer(Path(output), "mcap", "zstd", bulk=True)
         if csv_path is not None:
             csv_file = open(csv_path, "w", newline="", encoding="utf-8")
         session = ReplaySession(config, writer=writer, csv_file=csv_file,
@@ -1035,7 +1169,26 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
         total = sum(c.msgcount for c in conns + truth_conns)
         bar = Progress(total, PROG, enabled=progress)
         n = 0
-        if block:
+        # --output on the block path: ROS 2 Imu bytes, the quasi-static estimator's
+        # per-sample outputs (update_states), no truth
+        out_block = (writer is not None and not block and not per_sample and not truth_conns
+                     and layout == "ros2" and bytes_output and not motion
+                     and hasattr(session.al, "update_states"))
+        if out_block:
+            blocks = TopicBlocks(reader, conns, bag, READ_CHUNK, fast=fast_mcap)
+            for mb in blocks:
+                batch = decode_imu_array(
+                    mb.buf, mb.starts, mb.sizes, layout, fallback=lambda raw, i, mb=mb:
+                    deserialize(reader, raw, IMU_TYPE, bag, int(mb.log_ns[i])))
+                session.on_imu_output_block(batch, mb)
+                n += len(batch)
+                bar.update(n)
+            fast_name = "sqlite3-bulk" if getattr(reader, "storage", "") == "sqlite3" \
+                else "mcap-numpy"
+            session.reading = (fast_name if blocks.fallback_reason is None else
+                               "rosbags" if blocks.fast_messages == 0 else f"{fast_name}+rosbags",
+                               blocks.fallback_reason)
+        elif block:
             blocks = TopicBlocks(reader, conns, bag, READ_CHUNK, fast=fast_mcap)
             decoded = (decode_imu_array(mb.buf, mb.starts, mb.sizes, layout, fallback=lambda
                                         raw, i, mb=mb: deserialize(reader, raw, IMU_TYPE, bag,

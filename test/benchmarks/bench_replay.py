@@ -16,8 +16,9 @@ prints each figure beside issue 14's targets (800,000 Imu messages/s end to end,
   blocks of thousands of samples), cold (the gain schedule cache cleared; imports done) and
   warm, cold on the same data in an uncompressed bag (what ``ros2 bag record`` writes by
   default; the result must be identical), and the same forced onto the per-sample path
-  (before); with ``--csv`` (block path cut at the 10 Hz rows) and ``--output`` (the node's
-  per-sample path);
+  (before); with ``--csv`` and ``--output`` (both on the block path: the estimator's
+  outputs after each sample from ``Aligner.update_states``; ``--output`` also writes every
+  message, through ``sins_align.io.mcapwrite.BulkWriter``);
 - in a fresh process (``python -m sins_align.tools.replay BAG --summary-json``, as users run
   it): the summary's ``messages_per_s`` (bag opened -> summary) and the process's wall time,
   for the mcap + zstd bag, the uncompressed one, a sqlite3 copy (read in bulk) and an mcap
@@ -32,8 +33,8 @@ prints each figure beside issue 14's targets (800,000 Imu messages/s end to end,
 Measured (x86_64, 2 cores, CPython 3.11, numpy 2.4; the machine's speed drifts by up to
 1.7x, more under other jobs), 600 s bag: see README "Speed". In a fresh process the replay
 window is now mostly the estimator's cold ``Aligner.update`` (80-90 % of it under load);
---csv and --output run at the estimator's one-sample path (cut at every 10 Hz row / an
-output after every sample).
+--csv takes its rows from ``update_states`` (only the 10 Hz ones), --output the outputs of
+every sample (and the diagnostics' estimator views), about 45 % of its run, then zstd.
 """
 from __future__ import annotations
 

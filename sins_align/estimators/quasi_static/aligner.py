@@ -25,12 +25,13 @@ Method (see README "How it aligns" and ALGORITHM.md)
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 from collections import Counter
 from collections.abc import Callable
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -98,11 +99,36 @@ class SampleStates:
     started: np.ndarray
     #: how many samples were used (what :meth:`Aligner.update` returns)
     used: int = 0
+    #: sample index -> :class:`StateView` after it, for the samples asked for
+    #: (``update_states(views=...)``)
+    views: dict = field(default_factory=dict)
 
     @classmethod
     def empty(cls, n: int) -> "SampleStates":
         return cls(np.ones(n, dtype=bool), np.empty((n, 3, 3)), np.empty((n, 3, 3)),
                    np.zeros(n, dtype=bool), np.ones(n, dtype=bool))
+
+
+@dataclass(frozen=True)
+class StateView:
+    """The read-outs of an :class:`Aligner` that a status report takes (align_node's
+    diagnostics), as they were after one sample: same names and values as the Aligner's
+    attributes then (the counters are copies)."""
+
+    status: str
+    stage: str
+    aligned: bool
+    heading_observable: bool
+    elapsed: float
+    std_enu_deg: np.ndarray
+    limit_std_deg: np.ndarray
+    samples_used: int
+    rejected: dict
+    last_reject: str | None
+    nis: float
+    time_to_aligned: float | None
+    events: dict
+    nominal_dt: float | None
 
 
 class Aligner(EventSource, AttitudeReadout):
@@ -280,6 +306,19 @@ class Aligner(EventSource, AttitudeReadout):
         """Data time since the first sample, s."""
         return 0.0 if self.t_first is None else self.t_last - self.t_first
 
+    def view(self, partial: bool = False) -> StateView:
+        """The read-outs of a status report now (:class:`StateView`); ``partial``: without
+        the two that change at every sample (``elapsed``, ``std_enu_deg``: None)."""
+        return StateView(
+            status=self.status, stage=self.stage, aligned=bool(self.aligned),
+            heading_observable=self.heading_observable,
+            elapsed=None if partial else self.elapsed,
+            std_enu_deg=None if partial else self.std_enu_deg,
+            limit_std_deg=self.limit_std_deg, samples_used=self.samples_used,
+            rejected=dict(self.rejected), last_reject=self.last_reject, nis=self.nis,
+            time_to_aligned=self.time_to_aligned, events=dict(self.events),
+            nominal_dt=self.nominal_dt)
+
     # ------------------------------------------------------------------ input
     def update(self, stamp, gyro, accel) -> int:
         """Process one sample or a block of samples.
@@ -312,7 +351,7 @@ class Aligner(EventSource, AttitudeReadout):
             k += 1
         return n
 
-    def update_states(self, stamp, gyro, accel, want=None) -> SampleStates:
+    def update_states(self, stamp, gyro, accel, want=None, views=None) -> SampleStates:
         """:meth:`update` on a block, returning the outputs after every sample
         (:class:`SampleStates`): the attitude, the published covariance and the aligned
         flag that reading :attr:`dcm`, :attr:`covariance` and :attr:`aligned` after feeding
@@ -321,17 +360,26 @@ class Aligner(EventSource, AttitudeReadout):
         (:meth:`AlignmentFilter.coast_states`) and the coarse pass's floors are evaluated
         for all samples at once. Runs that the fast path does not take, or whose intervals
         are not uniform, go one sample at a time. ``want``: (N,) bool, the samples whose
-        outputs are needed (default all; the others' dcm and covariance are left unset)."""
+        outputs are needed (default all; the others' dcm and covariance are left unset).
+        ``views``: (N,) bool, the samples after which :meth:`view` is wanted too (in
+        ``out.views``; between two updates only the time, the samples used and the
+        covariance change, so a fast block's views are those of its updates with these
+        three taken at the sample)."""
         t, w, f = _sample_arrays(stamp, gyro, accel)
         out = SampleStates.empty(len(t))
         want = np.ones(len(t), dtype=bool) if want is None else np.asarray(want, dtype=bool)
+        if views is not None:
+            views = np.asarray(views, dtype=bool)
+            want = want | views
+            if not views.any():
+                views = None
         k = 0
         while k < len(t):
             j = self._clean_run(t, w, f, k)
             if j - k >= FAST_MIN_BLOCK and uniform_interval(
                     np.diff(t[k:j], prepend=self.t_last)) is not None:
                 used = self._accept_block(t[k:j], w[k:j], f[k:j], states=out, at=k,
-                                          want=want)
+                                          want=want, views=views)
                 out.used += used
                 k += used
                 if k == j:
@@ -346,6 +394,8 @@ class Aligner(EventSource, AttitudeReadout):
                 out.covariance[i] = self.covariance
                 out.aligned[i] = self._aligned
                 out.started[i] = self.t_last is not None
+                if views is not None and views[i]:
+                    out.views[i] = self.view()
             k = j
         return out
 
@@ -382,7 +432,7 @@ class Aligner(EventSource, AttitudeReadout):
         return end
 
     def _accept_block(self, t, w, f, states: SampleStates | None = None, at: int = 0,
-                      want=None) -> int:
+                      want=None, views=None) -> int:
         """Clean samples through the fast path: all of them, or those before the first
         units-check window closing that would flag the rates. Returns how many.
         ``states``: filled from ``at`` with the outputs after each sample (uniform
@@ -395,13 +445,19 @@ class Aligner(EventSource, AttitudeReadout):
                     return 0
                 t, w, f, dts = t[:m], w[:m], f[:m], dts[:m]
         self.t_last = self._t_prev_raw = self._force_ok = float(t[-1])
+        used0 = self.samples_used
         self.samples_used += len(t)
+        vsel = (np.flatnonzero(views[at:at + len(t)]) if states is not None
+                and views is not None else np.empty(0, dtype=np.int64))
+        vsnaps: dict = {}
         self._recent.extend(dts, w, f)
 
         fl = self.filter
         snaps: dict = {}
         if states is not None:
             snaps[-1] = self._snapshot()
+            if len(vsel):
+                vsnaps[-1] = self.view(partial=True)
             hist = fl.buffered_forces()
             coarse_model = None
             if not fl.backtracked:
@@ -414,6 +470,8 @@ class Aligner(EventSource, AttitudeReadout):
             self._refresh_aligned()
             if states is not None:
                 snaps[i] = self._snapshot()
+                if len(vsel):
+                    vsnaps[i] = self.view(partial=True)
 
         fl.on_update = check
         try:
@@ -425,7 +483,27 @@ class Aligner(EventSource, AttitudeReadout):
         if states is not None:
             self._fill_states(states, at, dts, w, f, snaps, coarse_model, hist,
                               np.flatnonzero(want[at:at + len(t)]))
+            if len(vsel):
+                self._fill_views(states, at, t, vsel, vsnaps, used0)
         return len(t)
+
+    def _fill_views(self, out: SampleStates, at: int, t, sel, vsnaps: dict, used0: int):
+        """:meth:`view` after the samples ``sel`` of a fast block: that of the last update
+        before (``vsnaps``, -1 before the block) with the sample's time, count and
+        covariance; the block's last sample reads the Aligner itself (its flag is
+        refreshed there, as :meth:`_fill_states` takes it)."""
+        idx = np.array(sorted(vsnaps))
+        g = idx[np.searchsorted(idx, sel, side="right") - 1]
+        std = np.sqrt(np.einsum("nii->ni", out.covariance[at + sel])) / DEG
+        t0 = self.t_first
+        for k, (i, gi) in enumerate(zip(sel.tolist(), g.tolist())):
+            if i == len(t) - 1:
+                out.views[at + i] = self.view()
+                continue
+            v = vsnaps[gi]
+            out.views[at + i] = dataclasses.replace(
+                v, elapsed=0.0 if t0 is None else float(t[i]) - t0, std_enu_deg=std[k],
+                samples_used=used0 + i + 1)
 
     def _snapshot(self) -> tuple:
         fl = self.filter
