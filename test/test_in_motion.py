@@ -15,6 +15,7 @@ from sins_align.estimators.in_motion import (InvariantEKF, MotionAligner, Motion
                                              NoiseModel)
 from sins_align.estimators.in_motion.filter import propagate_reference, sample_transition
 from sins_align.estimators.session import AlignmentSession
+from motion_helpers import fed_in_blocks
 from sins_align.sim.trajectory import (SEED003_SPECS, Segment, Trajectory, car_with_turn,
                                        simulate_trajectory, uav_seed003)
 
@@ -396,12 +397,8 @@ def test_navigation_grade_gyrocompasses_parked_and_keeps_heading_driving_off():
     r = simulate_trajectory(traj, 100.0, "navigation", seed=1, gnss_rate=10.0, gnss_sigma=0.02)
     al = MotionAligner(MotionConfig(latitude_deg=34.0, longitude_deg=108.0,
                                     specs="navigation", velocity_noise=0.02))
-    for tg, vg in zip(r.gnss_t, r.gnss_v):
-        al.add_velocity(tg, vg)
     rows = []
-    for k in range(0, len(r.gyro), 500):
-        al.update(r.t[k + 1:k + 501], r.gyro[k:k + 500], r.accel[k:k + 500])
-        j = min(k + 500, len(r.gyro))
+    for j in fed_in_blocks(al, r, 500):
         rows.append((r.t[j], attitude_error(r.C[j], al.dcm) / DEG, al.std_enu_deg, al.aligned,
                      al.hypotheses))
     t = np.array([x[0] for x in rows])

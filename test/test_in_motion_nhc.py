@@ -13,6 +13,8 @@ from sins_align.estimators.in_motion import InvariantEKF, MotionAligner, MotionC
 from sins_align.estimators.in_motion.filter import NoiseModel
 from sins_align.sim.trajectory import car_city, simulate_trajectory
 
+from motion_helpers import fed_in_blocks
+
 CAR_MEMS = SensorSpecs(gyro_bias=10.0 * DPH, gyro_arw=0.3 * DPSH, accel_bias=1000 * UG,
                        accel_vrw=100.0 * UG_PSHZ)
 
@@ -68,12 +70,8 @@ def _drive(seed, imu_position, seconds=150.0, sideslip_deg=0.0, **cfg):
     al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
                                     height_m=traj.height_m, specs=CAR_MEMS, velocity_noise=0.05,
                                     vehicle="ground", nhc_axis=1, **cfg))
-    for tg, vg in zip(r.gnss_t, r.gnss_v):
-        al.add_velocity(tg, vg)
     ratios = []
-    for k in range(0, len(r.gyro), 10):
-        al.update(r.t[k + 1:k + 11], r.gyro[k:k + 10], r.accel[k:k + 10])
-        j = min(k + 10, len(r.gyro))
+    for j in fed_in_blocks(al, r, 10):
         if al.initialized and al.hypotheses == 1:
             e = np.abs(attitude_error(r.C[j], al.dcm))
             ratios.append(e / np.sqrt(np.diag(al.covariance)))

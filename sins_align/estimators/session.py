@@ -168,15 +168,10 @@ class AlignmentSession:
                 out.views.update((k + i, v) for i, v in st.views.items())
             if b < n:
                 resets = self.resets
-                out.accepted[b] = self.feed(float(t[b]), w[b], f[b])
+                accepted = self.feed(float(t[b]), w[b], f[b])
                 if self.resets != resets:
                     self.block_restarts.append((b, self.resets, self.last_reset_reason))
-                out.dcm[b] = est.dcm
-                out.covariance[b] = est.covariance
-                out.aligned[b] = est.aligned
-                out.started[b] = est.t_last is not None
-                if views is not None and views[b]:
-                    out.views[b] = est.view()
+                out.record(b, est, accepted, views is not None and views[b])
             k = b + 1
         return out
 

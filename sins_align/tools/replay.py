@@ -1114,6 +1114,14 @@ def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _block_reading(reader, blocks) -> tuple:
+    """The summary's (reading, fallback reason) after the block path read ``blocks``."""
+    fast_name = "sqlite3-bulk" if getattr(reader, "storage", "") == "sqlite3" else "mcap-numpy"
+    return (fast_name if blocks.fallback_reason is None else
+            "rosbags" if blocks.fast_messages == 0 else f"{fast_name}+rosbags",
+            blocks.fallback_reason)
+
+
 def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
            truth_topic: str | None = None, output: Path | None = None, csv_path: Path | None = None,
            keep_plot: bool = False, progress: bool | None = None,
@@ -1183,11 +1191,7 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
                 session.on_imu_output_block(batch, mb)
                 n += len(batch)
                 bar.update(n)
-            fast_name = "sqlite3-bulk" if getattr(reader, "storage", "") == "sqlite3" \
-                else "mcap-numpy"
-            session.reading = (fast_name if blocks.fallback_reason is None else
-                               "rosbags" if blocks.fast_messages == 0 else f"{fast_name}+rosbags",
-                               blocks.fallback_reason)
+            session.reading = _block_reading(reader, blocks)
         elif block:
             blocks = TopicBlocks(reader, conns, bag, READ_CHUNK, fast=fast_mcap)
             decoded = (decode_imu_array(mb.buf, mb.starts, mb.sizes, layout, fallback=lambda
@@ -1198,11 +1202,7 @@ def replay(bag: str | os.PathLike, config, *, topic: str | None = None,
                 session.on_imu_block(samples)
                 n += len(samples)
                 bar.update(n)
-            fast_name = "sqlite3-bulk" if getattr(reader, "storage", "") == "sqlite3" \
-                else "mcap-numpy"
-            session.reading = (fast_name if blocks.fallback_reason is None else
-                               "rosbags" if blocks.fast_messages == 0 else f"{fast_name}+rosbags",
-                               blocks.fallback_reason)
+            session.reading = _block_reading(reader, blocks)
         else:
             truth_ids = {id(c) for c in truth_conns}
             if truth_conns or per_sample or layout != "ros2":

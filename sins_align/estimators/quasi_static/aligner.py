@@ -103,6 +103,16 @@ class SampleStates:
     #: (``update_states(views=...)``)
     views: dict = field(default_factory=dict)
 
+    def record(self, i: int, est: "Aligner", accepted: bool, view: bool = False) -> None:
+        """Sample i's outputs read from ``est`` right after it was fed alone."""
+        self.accepted[i] = accepted
+        self.dcm[i] = est.dcm
+        self.covariance[i] = est.covariance
+        self.aligned[i] = est.aligned
+        self.started[i] = est.t_last is not None
+        if view:
+            self.views[i] = est.view()
+
     @classmethod
     def empty(cls, n: int) -> "SampleStates":
         return cls(np.ones(n, dtype=bool), np.empty((n, 3, 3)), np.empty((n, 3, 3)),
@@ -389,13 +399,8 @@ class Aligner(EventSource, AttitudeReadout):
             for i in range(k, j):           # one by one (j - k = 1 after a cut block)
                 r = sum(self.rejected.values())
                 out.used += self._sample(float(t[i]), w[i], f[i])
-                out.accepted[i] = sum(self.rejected.values()) == r
-                out.dcm[i] = self.dcm
-                out.covariance[i] = self.covariance
-                out.aligned[i] = self._aligned
-                out.started[i] = self.t_last is not None
-                if views is not None and views[i]:
-                    out.views[i] = self.view()
+                out.record(i, self, sum(self.rejected.values()) == r,
+                           views is not None and views[i])
             k = j
         return out
 
