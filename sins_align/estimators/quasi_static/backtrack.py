@@ -344,6 +344,7 @@ class SampleBuffer:
         self._wf = np.empty((1024, n, 6))
         self._n = 0
         self._blocks = None            # (k, block means) of force_means
+        self._last_means = None        # (k, most, blocks), the array force_means returned
 
     def append(self, dt, w, f, gap, hole=(0.0, 0.0), bridge=None):
         if self._n == len(self._t):
@@ -370,14 +371,22 @@ class SampleBuffer:
     def force_means(self, k: int, most: int) -> np.ndarray:
         """Mean specific force of the last ``most`` complete blocks of ``k`` samples (counted
         from the first sample, so the same blocks whatever the feeding), (m, N, 3). Each block
-        is averaged once (the buffer holds a minute: tens of blocks)."""
+        is averaged once (the buffer holds a minute: tens of blocks). Until a block
+        completes the same array is returned (not to be written to)."""
+        key = (k, most, self._n // k)
+        last = self._last_means
+        if last is not None and last[0] == key:
+            return last[1]
         if self._blocks is None or self._blocks[0] != k:
             self._blocks = (k, [])
         means = self._blocks[1]
         for j in range(len(means), self._n // k):
             means.append(self._wf[j * k:(j + 1) * k, :, 3:].mean(axis=0))
         got = means[-most:]
-        return np.array(got) if got else np.zeros((0, self._wf.shape[1], 3))
+        out = np.array(got) if got else np.zeros((0, self._wf.shape[1], 3))
+        out.flags.writeable = False
+        self._last_means = (key, out)
+        return out
 
     def arrays(self):
         """dt, w, f, gap, hole (M, 2), bridge (M, 6): rate, specific force."""
