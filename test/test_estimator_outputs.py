@@ -151,3 +151,57 @@ def test_with_orientation_packs_a_list_as_the_array_path():
     assert lay.with_orientation(raw, vals) == lay.with_orientation(raw, np.array(vals))
     with pytest.raises(ValueError):
         lay.with_orientation(raw, vals[:12])
+
+
+def _close(a, b, what, k):
+    a, b = np.asarray(a), np.asarray(b)
+    scale = max(float(np.max(np.abs(b))), 1e-300)
+    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-13 * scale, err_msg=f"{what} at {k}")
+
+
+def test_one_run_filter_steps_equal_the_stacked_reference():
+    """AlignmentFilter.step for one run (2-D products: the node's path) against the same
+    filter stacked over two identical runs with a covariance per run (numpy's stacked
+    products: the general path), at every sample of a coarse pass, the backtrack and a fine
+    pass, with gaps bridged by means, holes and a rotation handed in (as the Aligner does)."""
+    from sins_align.core.rotation import dcm_from_rpy, so3_exp
+    from sins_align.core.specs import DEG
+    from sins_align.estimators.quasi_static.filter import AlignmentFilter
+
+    s = simulate(9.0, rate=RATE, seed=4, rpy_deg=(2.0, 1.0, 30.0), sway="ship")
+    cfg = AlignConfig(latitude_deg=34.0, rate_hz=RATE, backtrack_time=5.0)
+    C0 = dcm_from_rpy(np.array([0.5, -0.5, 10.0]) * DEG)
+    one = AlignmentFilter(cfg, C0[None])
+    two = AlignmentFilter(cfg, np.stack([C0, C0]))
+
+    def per_run(fl):
+        fl.P = np.broadcast_to(fl.P, (2, 6, 6)).copy()
+        fl.S = np.broadcast_to(fl.S, (2, 6, 6)).copy()
+
+    per_run(two)
+    dt = 1.0 / RATE
+    stages = set()
+    for k in range(len(s.t)):
+        w, f = s.gyro[k], s.accel[k]
+        gap, hole, bridge, dR = 0.0, (0.0, 0.0), None, None
+        if k % 1500 == 700:
+            gap, hole = 0.05, (1e-10, 1e-6)
+            bridge = (s.gyro[k - 200:k].mean(0), s.accel[k - 200:k].mean(0))
+        elif k % 1500 == 1100:
+            hole = (2e-11, 3e-7)
+        elif k % 3 == 0:
+            dR = so3_exp(w * dt)                  # (3, 3), as the units check hands it
+        was = two.backtracked
+        one.step(dt, w[None], f[None], gap, dR, hole, bridge)
+        two.step(dt, np.stack([w, w]), np.stack([f, f]), gap, dR, hole, bridge)
+        if two.backtracked and not was:
+            per_run(two)
+        stages.add(one.stage)
+        _close(one.C[0], two.C[0], "C", k)
+        _close(one.C[0], two.C[1], "C", k)
+        _close(one.v[0], two.v[1], "v", k)
+        _close(one.P[0], two.P[1], "P", k)
+        _close(one.S[0], two.S[1], "S", k)
+        _close(one.attitude_covariance(0), one.total_covariance()[0, :3, :3], "cov", k)
+    assert stages == {"coarse", "fine"}
+    assert one.updates == two.updates > 3

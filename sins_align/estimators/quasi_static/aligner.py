@@ -57,6 +57,7 @@ REJECT_REASONS = (
 )
 
 FAST_MAX_BLOCK = 65536
+_FLOAT = np.dtype(float)
 #: samples _clean_run checks at once (arrays of 64 kB: below malloc's mmap threshold)
 CLEAN_PIECE = 8192
 #: samples in a row that must agree on a new time line before it is taken (a time jump)
@@ -342,6 +343,10 @@ class Aligner(EventSource, AttitudeReadout):
         -------
         accepted : int — how many samples were used; the rest are counted in :attr:`rejected`.
         """
+        if (stamp.__class__ is float and gyro.__class__ is np.ndarray
+                and accel.__class__ is np.ndarray and gyro.shape == accel.shape == (3,)
+                and gyro.dtype is accel.dtype is _FLOAT):
+            return self._sample(stamp, gyro, accel)        # one sample as the node has it
         if np.ndim(stamp) == 0 and np.shape(gyro) == (3,) and np.shape(accel) == (3,):
             return self._sample(float(stamp), np.asarray(gyro, dtype=float),
                                 np.asarray(accel, dtype=float))

@@ -350,11 +350,18 @@ class SampleBuffer:
         if self._n == len(self._t):
             self._t = np.concatenate([self._t, np.empty_like(self._t)])
             self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
-        self._t[self._n, :4] = (dt, gap, hole[0], hole[1])
-        self._t[self._n, 4:] = 0.0 if bridge is None else np.concatenate(bridge)
-        self._wf[self._n, :, :3] = w
-        self._wf[self._n, :, 3:] = f
-        self._n += 1
+        n = self._n
+        if bridge is None:
+            self._t[n] = (dt, gap, hole[0], hole[1], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        else:
+            self._t[n, :4] = (dt, gap, hole[0], hole[1])
+            self._t[n, 4:] = np.concatenate(bridge)
+        if self._wf.shape[1] == 1:           # one run: one row written at once
+            self._wf[n, 0] = [*w.reshape(3).tolist(), *f.reshape(3).tolist()]
+        else:
+            self._wf[n, :, :3] = w
+            self._wf[n, :, 3:] = f
+        self._n = n + 1
 
     def extend(self, dt, w, f):
         """Append a block of samples (no gaps): w, f (M, N, 3)."""

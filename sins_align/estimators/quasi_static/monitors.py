@@ -483,7 +483,7 @@ class UnitsMonitor:
             return None
         w0, w1, w2 = w.tolist()
         dR = np.array(so3_exp_entries(w0 * dt, w1 * dt, w2 * dt)).reshape(3, 3)
-        self.B = B = self.B @ dR
+        self.B = B = np.dot(self.B, dR)
         self.T += dt
         j = min(int(self.T), self.bins - 1)
         # scalar arithmetic on the 3-vectors (one sample: numpy calls cost more than the sums)
