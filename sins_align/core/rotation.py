@@ -163,21 +163,34 @@ def quat_from_dcm(C: np.ndarray) -> np.ndarray:
 
 def _quat_from_dcm_one(C: np.ndarray) -> np.ndarray:
     """quat_from_dcm of a single DCM: the same Shepperd branches, scalar math."""
+    return np.array(quat_values_from_dcm(C))
+
+
+def quat_values_from_dcm(C: np.ndarray) -> list[float]:
+    """:func:`quat_from_dcm` of one DCM (3, 3) as four floats [x, y, z, w] (w >= 0): the same
+    Shepperd branches in scalar math (the node publishes one after every sample)."""
     (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = C.tolist()
     tr = c00 + c11 + c22
-    k = max(range(4), key=(c00, c11, c22, tr).__getitem__)
+    # the largest of c00, c11, c22, tr, the first one on ties
+    k, top = 0, c00
+    if c11 > top:
+        k, top = 1, c11
+    if c22 > top:
+        k, top = 2, c22
+    if tr > top:
+        k = 3
     if k == 0:
-        q = (1 + 2 * c00 - tr, c10 + c01, c20 + c02, c21 - c12)
+        q0, q1, q2, q3 = 1 + 2 * c00 - tr, c10 + c01, c20 + c02, c21 - c12
     elif k == 1:
-        q = (c10 + c01, 1 + 2 * c11 - tr, c21 + c12, c02 - c20)
+        q0, q1, q2, q3 = c10 + c01, 1 + 2 * c11 - tr, c21 + c12, c02 - c20
     elif k == 2:
-        q = (c20 + c02, c21 + c12, 1 + 2 * c22 - tr, c10 - c01)
+        q0, q1, q2, q3 = c20 + c02, c21 + c12, 1 + 2 * c22 - tr, c10 - c01
     else:
-        q = (c21 - c12, c02 - c20, c10 - c01, 1 + tr)
-    n = math.sqrt(sum(x * x for x in q))
-    if q[3] < 0.0:
+        q0, q1, q2, q3 = c21 - c12, c02 - c20, c10 - c01, 1 + tr
+    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    if q3 < 0.0:
         n = -n
-    return np.array([x / n for x in q])
+    return [q0 / n, q1 / n, q2 / n, q3 / n]
 
 
 def dcm_from_quat(q: np.ndarray) -> np.ndarray:

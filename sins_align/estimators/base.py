@@ -7,7 +7,8 @@
   Counter) in its constructor.
 - :class:`AttitudeReadout`: ``quaternion``, ``rpy_deg``, ``heading_deg`` and ``std_enu_deg``
   for a class that defines ``dcm`` (C_b^n, (3, 3)) and ``covariance`` (E/N/U attitude
-  error, rad^2).
+  error, rad^2), and ``orientation_values`` (the two as 13 floats, what the fronts publish
+  after every sample; a class may compute it faster itself).
 """
 from __future__ import annotations
 
@@ -74,6 +75,11 @@ class AttitudeReadout:
     def quaternion(self) -> np.ndarray:
         """Orientation of the IMU frame in ENU, [x, y, z, w] (C_b^n, as imu_filter_madgwick)."""
         return quat_from_dcm(self.dcm)
+
+    def orientation_values(self) -> list[float]:
+        """:attr:`quaternion` [x, y, z, w] then :attr:`covariance` (9, row-major): 13 floats."""
+        return self.quaternion.tolist() + np.asarray(self.covariance, dtype=float).reshape(
+            -1).tolist()
 
     @property
     def rpy_deg(self) -> np.ndarray:

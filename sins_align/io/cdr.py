@@ -469,6 +469,7 @@ def _strings(u8: np.ndarray, ok: np.ndarray, nbytes: np.ndarray, idx, frame_id: 
 # ----------------------------------------------------------------------------- one message
 _STAMP = struct.Struct("<iI")
 _VEC3 = struct.Struct("<3d")
+_ORIENTATION = struct.Struct("<13d")     # orientation, then orientation_covariance
 _U4 = struct.Struct("<I")
 
 
@@ -522,6 +523,13 @@ class ImuLayout:
     def with_orientation(self, raw: bytes, values) -> bytes:
         """``raw`` with orientation and orientation_covariance replaced by ``values`` (13
         numbers: x, y, z, w, then the 9 covariances, row-major) and zero padding."""
+        if type(values) is list and len(values) == _ORIENTATION.size // 8:
+            # 13 Python floats (the node's path): packed directly, the same bytes
+            try:
+                v = _ORIENTATION.pack(*values)
+                return raw[:12] + self._prefix + v + raw[self.floats + len(v):]
+            except struct.error:                # not numbers struct takes: numpy's way
+                pass
         v = np.asarray(values, "<f8")
         if v.shape != (ORIENTATION_COV.stop,):
             raise ValueError(f"expected {ORIENTATION_COV.stop} values, got shape {v.shape}")

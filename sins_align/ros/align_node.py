@@ -104,7 +104,7 @@ def make_node_class():
 
     from sins_align.io.cdr import ImuLayout
     from sins_align.estimators.session import AlignmentSession
-    from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_output_values,
+    from sins_align.ros.outputs import (StampClock, euler_deg, imu_output, imu_output_list,
                                         imu_sample, motion_diagnostics, node_diagnostics)
     from sins_align.ros.reference import REFUSE_TEXT, VELOCITY_SILENCE, ReferenceFeed
 
@@ -291,7 +291,7 @@ def make_node_class():
             sec, nanosec, w, f = layout.read(raw)
             if self._sample(self.stamp_clock(sec, nanosec), np.array(w), np.array(f)):
                 self.last_header = (sec, nanosec, layout.frame_id)
-                self.pub_imu.publish(layout.with_orientation(raw, imu_output_values(self.aligner)))
+                self.pub_imu.publish(layout.with_orientation(raw, imu_output_list(self.aligner)))
             self._publish_aligned()
 
         def _on_imu(self, msg):

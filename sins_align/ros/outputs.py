@@ -52,7 +52,13 @@ class ImuOutput:
 
 def imu_output_values(al: Aligner) -> np.ndarray:
     """(13,) float64: the orientation [x, y, z, w], then its covariance (9, row-major)."""
-    return np.concatenate((al.quaternion, al.covariance.reshape(-1)))
+    return np.array(imu_output_list(al))
+
+
+def imu_output_list(al: Aligner) -> list[float]:
+    """:func:`imu_output_values` as 13 Python floats (the node's path after every sample:
+    the estimator's ``orientation_values``)."""
+    return al.orientation_values()
 
 
 def imu_output(al: Aligner) -> ImuOutput:

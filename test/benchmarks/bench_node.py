@@ -22,8 +22,15 @@ A third row per rate, ``floor``, runs the same harness around a minimal rclpy no
 publishes the same bytes back, nothing else. Its µs per message is what rclpy and Fast DDS
 cost on this machine in the same minutes, whatever the callback does.
 
+``--callback`` measures, instead, the node's own part in-process (no DDS): a node's ``_on_raw``
+is fed 10 s of serialised 2 kHz messages (publishing to no subscriber) and timed per call,
+coarse and fine pass, with a second pass timing its parts (reading the bytes, the
+estimator's update, the published orientation and covariance, writing the bytes, publishing
+and the flag).
+
 Usage: ``.venv/bin/python test/benchmarks/bench_node.py [--rates 100 400] [--duration 10]``
-(``make bench`` runs it). Uses its own ROS_DOMAIN_ID (random) on localhost.
+(``make bench`` runs it); ``... bench_node.py --callback``. Uses its own ROS_DOMAIN_ID (random)
+on localhost.
 """
 from __future__ import annotations
 
@@ -154,6 +161,78 @@ def floor_node() -> None:
     rclpy.try_shutdown()
 
 
+# ------------------------------------------------------------------------------ in-process
+def callback_cost(rate: float = 2000.0, duration: float = 10.0) -> None:
+    """The node's callback alone: ``_on_raw`` on serialised messages, coarse and fine pass
+    (backtrack at 60 s / 5 s; the fine figures from the samples after the backtrack), CPU
+    µs per call; then its parts, timed with process_time in a second node."""
+    import numpy as np
+    import rclpy
+    from rclpy.parameter import Parameter
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import Imu
+
+    from sins_align.ros.align_node import make_node_class
+    from sins_align.ros.outputs import imu_output_list
+    from sins_align.sim.simulator import simulate
+
+    sim = simulate(duration, rate=rate, seed=1)
+    raws = []
+    for k in range(len(sim.t)):
+        m = Imu()
+        m.header.frame_id = "imu_link"
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(
+            1_700_000_000 * 1_000_000_000 + int(round(sim.t[k] * 1e9)), 1_000_000_000)
+        m.orientation_covariance[0] = -1.0
+        m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = map(float, sim.gyro[k])
+        m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = map(
+            float, sim.accel[k])
+        raws.append(serialize_message(m))
+    rclpy.init(args=[])
+    Node = make_node_class()
+    print(f"align_node callback in-process, {len(raws)} messages at {rate:g} Hz")
+    for phase, backtrack in (("coarse", 60.0), ("fine", 5.0)):
+        start = 0 if backtrack > duration else int((backtrack + 0.5) * rate)
+        nodes = [Node(namespace=f"/callback_{phase}_{i}",
+                      parameter_overrides=[Parameter("latitude", value=34.0),
+                                           Parameter("rate", value=rate),
+                                           Parameter("backtrack_time", value=backtrack)])
+                 for i in range(2)]
+        node = nodes[0]
+        for r in raws[:start]:
+            node._on_raw(r)
+        c0 = time.process_time()
+        for r in raws[start:]:
+            node._on_raw(r)
+        per_call = 1e6 * (time.process_time() - c0) / (len(raws) - start)
+        node = nodes[1]                        # the parts, as _on_raw runs them
+        node._on_raw(raws[0])
+        lay, al, pc = node._layout, node.aligner, time.process_time
+        parts = np.zeros(4)
+        for i, r in enumerate(raws[1:], 1):
+            a = pc()
+            sec, nanosec, w, f = lay.read(r)
+            t, w, f = node.stamp_clock(sec, nanosec), np.array(w), np.array(f)
+            b = pc()
+            ok = node.session.feed(t, w, f)
+            c = pc()
+            values = imu_output_list(al)
+            d = pc()
+            if ok:
+                node.pub_imu.publish(lay.with_orientation(r, values))
+            node._publish_aligned()
+            e = pc()
+            if i >= start:
+                parts += (b - a, c - b, d - c, e - d)
+        parts *= 1e6 / (len(raws) - max(start, 1))
+        print(f"{phase:<7} _on_raw {per_call:6.1f} µs CPU per call; parts (CPU): read "
+              f"{parts[0]:.1f}, estimator update {parts[1]:.1f}, orientation + covariance "
+              f"{parts[2]:.1f}, bytes + publish + flag {parts[3]:.1f} µs", flush=True)
+        for n in nodes:
+            n.destroy_node()
+    rclpy.try_shutdown()
+
+
 # ------------------------------------------------------------------------------ one trial
 def trial(rate: float, duration: float, backtrack: float | None, env: dict) -> dict:
     """One rate through align_node (``backtrack`` s) or, with ``backtrack=None``, through
@@ -253,6 +332,8 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=10.0, help="s of publishing per trial")
     ap.add_argument("--no-floor", action="store_true",
                     help="skip the floor rows (a raw take-and-republish node, no estimator)")
+    ap.add_argument("--callback", action="store_true",
+                    help="time the node's callback in-process instead (no DDS, 2 kHz)")
     ap.add_argument("--publish", type=float, nargs=2, help=argparse.SUPPRESS)
     ap.add_argument("--floor-node", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -261,6 +342,9 @@ def main() -> int:
         return 0
     if a.floor_node:
         floor_node()
+        return 0
+    if a.callback:
+        callback_cost(duration=a.duration)
         return 0
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

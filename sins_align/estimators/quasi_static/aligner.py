@@ -41,7 +41,7 @@ from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSou
 from sins_align.estimators.quasi_static.fast_path import FAST_MIN_BLOCK, uniform_interval
 from sins_align.estimators.quasi_static.filter import AlignmentFilter
 from sins_align.estimators.quasi_static.monitors import RecentMotion, UnitsMonitor
-from sins_align.core.rotation import dcm_from_rpy
+from sins_align.core.rotation import dcm_from_rpy, quat_values_from_dcm
 from sins_align.core.specs import DEG, limit_covariance
 
 #: Reasons a sample can be rejected. A rejected sample never touches the filter state.
@@ -60,6 +60,7 @@ REJECT_REASONS = (
 )
 
 FAST_MAX_BLOCK = 65536
+_FLOAT = np.dtype(float)
 #: samples _clean_run checks at once (arrays of 64 kB: below malloc's mmap threshold)
 CLEAN_PIECE = 8192
 #: samples in a row that must agree on a new time line before it is taken (a time jump)
@@ -196,6 +197,7 @@ class Aligner(EventSource, AttitudeReadout):
         self.nominal_dt = 1.0 / c.rate_hz if c.rate_hz else None
         self._units = UnitsMonitor(self) if c.units_check_window > 0 else None
         self._recent = RecentMotion()
+        self._fb_source = self._fb_floats = None     # _force_blocks' conversion
         self.units_suspect = False
         self._restart_filter(last)
         self._emit("restarted", None, reason)
@@ -235,11 +237,85 @@ class Aligner(EventSource, AttitudeReadout):
         last second's specific force (the level error the accelerometer sees), and the
         heading std at least ``coarse_initial_std_deg``. When heading is
         unobservable the U row/column is cleared and its variance set to pi^2.
+
+        Computed by :meth:`covariance_values` (running means); equal to
+        :meth:`covariance_reference` (everything from scratch) to rounding.
         """
+        return np.array(self.covariance_values()).reshape(3, 3)
+
+    def orientation_values(self) -> list[float]:
+        """:attr:`quaternion` then :attr:`covariance` (row-major): 13 floats, what the node
+        publishes after every sample."""
+        return quat_values_from_dcm(self.filter.C[0]) + self.covariance_values()
+
+    def covariance_values(self) -> list[float]:
+        """:attr:`covariance`'s nine values, row-major, as floats. The coarse pass's level
+        floor reads the last second's mean specific force as a running mean
+        (``RecentMotion.second_mean_force``) and the 1 s block means of the buffer once
+        per block; the arithmetic is that of :meth:`covariance_reference` on floats."""
+        p = self.filter.attitude_covariance(0).tolist()
+        c = self.config
+        if c.backtrack and not self.filter.backtracked:
+            level = c.fine_initial_std_deg[0] * DEG
+            u0, u1, u2 = self.filter.C[0, 2].tolist()
+            fm = self._recent.second_mean_force()
+            if fm is not None:
+                # the accelerometer's own view of the level error: the angle between the
+                # estimated up and the specific force of the last second (large in the
+                # first seconds from a start far off, e.g. upside down)
+                f0, f1, f2 = fm
+                up = (u0 * f0 + u1 * f1 + u2 * f2) / max(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2),
+                                                         1e-12)
+                level = max(level, math.acos(max(-1.0, min(1.0, up))))
+            if self.nominal_dt is not None:
+                # ... and at least the largest angle to the 1 s means of the last 10 s: on a
+                # swaying base the estimate follows the apparent vertical, and the last second
+                # alone can agree with it while the true vertical is degrees away
+                blocks = self._force_blocks(max(1, int(round(1.0 / self.nominal_dt))))
+                if blocks is not None and len(blocks) < 2:
+                    # the first two seconds: nothing yet tells a sway from the vertical
+                    level = max(level, c.coarse_initial_std_deg[0] * DEG)
+                elif blocks is not None:
+                    cosmin = min((u0 * f0 + u1 * f1 + u2 * f2) / fn for f0, f1, f2, fn in blocks)
+                    level = max(level, math.acos(max(-1.0, min(1.0, cosmin))))
+            (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = p
+            d0, d1, d2 = math.sqrt(p00), math.sqrt(p11), math.sqrt(p22)
+            s0 = max(level, d0) / d0
+            s1 = max(level, d1) / d1
+            s2 = max(c.coarse_initial_std_deg[1] * DEG, d2) / d2
+            p = [[p00 * (s0 * s0), p01 * (s0 * s1), p02 * (s0 * s2)],
+                 [p10 * (s1 * s0), p11 * (s1 * s1), p12 * (s1 * s2)],
+                 [p20 * (s2 * s0), p21 * (s2 * s1), p22 * (s2 * s2)]]
+        if not self.heading_observable:
+            p[2] = [0.0, 0.0, math.pi ** 2]
+            p[0][2] = p[1][2] = 0.0
+        (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = p
+        # 0.5 (P + P^T), element by element as numpy computes it
+        a01, a02, a12 = 0.5 * (p01 + p10), 0.5 * (p02 + p20), 0.5 * (p12 + p21)
+        b01, b02, b12 = 0.5 * (p10 + p01), 0.5 * (p20 + p02), 0.5 * (p21 + p12)
+        return [0.5 * (p00 + p00), a01, a02, b01, 0.5 * (p11 + p11), a12, b02, b12,
+                0.5 * (p22 + p22)]
+
+    def _force_blocks(self, k: int) -> list | None:
+        """The buffer's last ten 1 s block means (:meth:`force_block_means`) as
+        (f0, f1, f2, max(|f|, 1e-12)) floats, converted once per new block (the buffer hands
+        back the same array until a block completes); None once the buffer is gone."""
+        fb = self.filter.force_block_means(k, 10)
+        if fb is None:
+            return None
+        if fb is not self._fb_source:
+            self._fb_source = fb
+            self._fb_floats = [(f0, f1, f2, max(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2), 1e-12))
+                               for f0, f1, f2 in fb[:, 0].tolist()]
+        return self._fb_floats
+
+    def covariance_reference(self) -> np.ndarray:
+        """:attr:`covariance` computed from scratch with numpy (the mean specific force of
+        the last second summed anew, the block means read anew): the reference the running
+        computation is tested against."""
         P = self.filter.attitude_covariance(0)
         c = self.config
         if c.backtrack and not self.filter.backtracked:
-            # scalar arithmetic on 3-vectors: the node reads this after every sample
             level = c.fine_initial_std_deg[0] * DEG
             u0, u1, u2 = self.dcm[2].tolist()
             fm = self._recent.mean_force(1.0)
@@ -343,6 +419,10 @@ class Aligner(EventSource, AttitudeReadout):
         -------
         accepted : int — how many samples were used; the rest are counted in :attr:`rejected`.
         """
+        if (stamp.__class__ is float and gyro.__class__ is np.ndarray
+                and accel.__class__ is np.ndarray and gyro.shape == accel.shape == (3,)
+                and gyro.dtype is accel.dtype is _FLOAT):
+            return self._sample(stamp, gyro, accel)        # one sample as the node has it
         if np.ndim(stamp) == 0 and np.shape(gyro) == (3,) and np.shape(accel) == (3,):
             return self._sample(float(stamp), np.asarray(gyro, dtype=float),
                                 np.asarray(accel, dtype=float))

@@ -351,16 +351,24 @@ class SampleBuffer:
         self._wf = np.empty((1024, n, 6))
         self._n = 0
         self._blocks = None            # (k, block means) of force_means
+        self._last_means = None        # (k, most, blocks), the array force_means returned
 
     def append(self, dt, w, f, gap, hole=(0.0, 0.0), bridge=None):
         if self._n == len(self._t):
             self._t = np.concatenate([self._t, np.empty_like(self._t)])
             self._wf = np.concatenate([self._wf, np.empty_like(self._wf)])
-        self._t[self._n, :4] = (dt, gap, hole[0], hole[1])
-        self._t[self._n, 4:] = 0.0 if bridge is None else np.concatenate(bridge)
-        self._wf[self._n, :, :3] = w
-        self._wf[self._n, :, 3:] = f
-        self._n += 1
+        n = self._n
+        if bridge is None:
+            self._t[n] = (dt, gap, hole[0], hole[1], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        else:
+            self._t[n, :4] = (dt, gap, hole[0], hole[1])
+            self._t[n, 4:] = np.concatenate(bridge)
+        if self._wf.shape[1] == 1:           # one run: one row written at once
+            self._wf[n, 0] = [*w.reshape(3).tolist(), *f.reshape(3).tolist()]
+        else:
+            self._wf[n, :, :3] = w
+            self._wf[n, :, 3:] = f
+        self._n = n + 1
 
     def extend(self, dt, w, f):
         """Append a block of samples (no gaps): w, f (M, N, 3)."""
@@ -377,14 +385,22 @@ class SampleBuffer:
     def force_means(self, k: int, most: int) -> np.ndarray:
         """Mean specific force of the last ``most`` complete blocks of ``k`` samples (counted
         from the first sample, so the same blocks whatever the feeding), (m, N, 3). Each block
-        is averaged once (the buffer holds a minute: tens of blocks)."""
+        is averaged once (the buffer holds a minute: tens of blocks). Until a block
+        completes the same array is returned (not to be written to)."""
+        key = (k, most, self._n // k)
+        last = self._last_means
+        if last is not None and last[0] == key:
+            return last[1]
         if self._blocks is None or self._blocks[0] != k:
             self._blocks = (k, [])
         means = self._blocks[1]
         for j in range(len(means), self._n // k):
             means.append(self._wf[j * k:(j + 1) * k, :, 3:].mean(axis=0))
         got = means[-most:]
-        return np.array(got) if got else np.zeros((0, self._wf.shape[1], 3))
+        out = np.array(got) if got else np.zeros((0, self._wf.shape[1], 3))
+        out.flags.writeable = False
+        self._last_means = (key, out)
+        return out
 
     def arrays(self):
         """dt, w, f, gap, hole (M, 2), bridge (M, 6): rate, specific force."""

@@ -144,7 +144,7 @@ class AlignmentFilter(FastPath, Backtrack):
         (computed from the attitude rows only)."""
         P, S = self.P, self.S
         Sa = S[run if len(S) > 1 else 0, :3]
-        return P[run if len(P) > 1 else 0, :3, :3] + (Sa * self._bias_var) @ Sa.T
+        return P[run if len(P) > 1 else 0, :3, :3] + np.dot(Sa * self._bias_var, Sa.T)
 
     def _with_bias(self, P, S):
         """P + S Sigma_b S^T (Sigma_b diagonal: the bias variances of the specs)."""
@@ -165,7 +165,10 @@ class AlignmentFilter(FastPath, Backtrack):
             self._buf.append(dt, w, f, gap, hole, bridge)
             if gap > 0.0 and bridge is not None:
                 self._B = self._B @ so3_exp(np.asarray(bridge[0], float) * gap)
-            self._B = self._B @ dR
+            if self.n == 1:
+                self._B = np.dot(self._B[0], dR.reshape(3, 3))[None]
+            else:
+                self._B = self._B @ dR
         self._advance(dt, w, f, gap, dR, hole, bridge)
         if self._backtrack_due(dt):
             self.backtrack()
@@ -225,9 +228,19 @@ class AlignmentFilter(FastPath, Backtrack):
         else:
             Phi, Qd = self._disc(F, dt)
             PhiT, Gdt = np.swapaxes(Phi, -1, -2), self.Gamma * dt
-        self.P = Phi @ self.P @ PhiT + Qd
+        P, S = self.P, self.S
+        if len(P) == len(S) == 1 and Phi.ndim == Qd.ndim == 2:
+            # one covariance (one run, or a shared one): 2-D products, numpy's stacked ones
+            # cost more for a single matrix
+            P = np.dot(np.dot(Phi, P[0]), PhiT)
+            P += Qd
+            S = np.dot(Phi, S[0])
+            S += Gdt
+            self.P, self.S = P[None], S[None]
+        else:
+            self.P = Phi @ P @ PhiT + Qd
+            self.S = Phi @ S + Gdt
         self._node = None
-        self.S = Phi @ self.S + Gdt
 
     def _advance(self, dt, w, f, gap, dR=None, hole=(0.0, 0.0), bridge=None):
         """Mechanization (paper eq. 1), covariance propagation, and an update when due.
@@ -249,8 +262,15 @@ class AlignmentFilter(FastPath, Backtrack):
             # samples were missing: what the motion could have done meanwhile (Aligner)
             self.P = self.P + np.diag([va] * 3 + [vv] * 3)
             self._node = None
-        self.C = self._earth_step(dt) @ self.C @ (so3_exp(w * dt) if dR is None else dR)
-        fn = (self.C @ f[..., None])[..., 0]
+        R = so3_exp(w * dt) if dR is None else dR
+        if self.n == 1:
+            # one run (the node, replay): 2-D products (the stacked ones cost more)
+            C = np.dot(np.dot(self._earth_step(dt), self.C[0]), R.reshape(3, 3))
+            fn = np.dot(C, f.reshape(3))[None]
+            self.C = C[None]
+        else:
+            self.C = self._earth_step(dt) @ self.C @ R
+            fn = (self.C @ f[..., None])[..., 0]
         self.v = self.v + (fn + self.g_n) * dt
         self.t_int += dt
         F = self._F(fn)

@@ -30,6 +30,11 @@ class RecentMotion:
 
     SIZE = 16384
     WINDOW = 20.0                       # s of samples the motion statistics look at
+    #: incremental steps (rows in, rows out) between two sums of :meth:`second_mean_force`
+    #: from scratch: its rounding stays that of a few hundred additions
+    REFRESH = 512
+    #: rows come in since the last call beyond which that sum is taken from scratch
+    CATCH_UP = 64
 
     def __init__(self):
         self._a = np.zeros((self.SIZE, 7))       # dt, w, f
@@ -40,18 +45,22 @@ class RecentMotion:
         self._before = np.zeros(self.SIZE)
         self._fT = np.zeros((3, self.SIZE))
         self._total = 0.0                        # sum of every dt pushed
+        self._count = 0                          # rows ever written (absolute row index)
+        # second_mean_force's running sum: the specific force of absolute rows [start, end),
+        # and the additions and subtractions made since it was last summed from scratch
+        self._sec = (0, 0, 0.0, 0.0, 0.0)
+        self._sec_steps = 0
 
     def push(self, dt: float, w, f):
         i = self._i
-        row = self._a[i]
-        row[0] = dt
-        row[1:4] = w
-        row[4:7] = f
+        fl = f.tolist()
+        self._a[i] = [dt, *w.tolist(), *fl]
         self._before[i] = self._total
         self._total += dt
-        self._fT[:, i] = f
+        self._fT[:, i] = fl
         self._i = (i + 1) % self.SIZE
         self._n = min(self._n + 1, self.SIZE)
+        self._count += 1
 
     def extend(self, dts, w, f):
         m = len(w)
@@ -71,6 +80,7 @@ class RecentMotion:
         self._fT[:, idx] = np.asarray(f, dtype=float).T
         self._i = (self._i + m) % self.SIZE
         self._n = min(self._n + m, self.SIZE)
+        self._count += len(w)
 
     def last(self, seconds: float) -> np.ndarray:
         """Rows (dt, w, f) of the last samples spanning at most ``seconds``, oldest first."""
@@ -125,6 +135,10 @@ class RecentMotion:
         k = self.window_rows(seconds)
         if k == 0:
             return None
+        return self._force_sum(k) / k
+
+    def _force_sum(self, k: int) -> np.ndarray:
+        """Sum of the specific force of the newest k rows (3,)."""
         left, total = k, None
         for a, b in reversed(self._pieces()):
             m = min(left, b - a)
@@ -132,7 +146,53 @@ class RecentMotion:
                 part = self._fT[:, b - m:b].sum(axis=1)
                 total = part if total is None else total + part
             left -= m
-        return total / k
+        return total
+
+    def second_mean_force(self) -> list[float] | None:
+        """:meth:`mean_force` over the last second as three floats, equal to it to rounding:
+        the same rows (those of ``window_rows(1.0)``), summed as a running sum (the rows
+        that came in added, those that left the window subtracted, a new sum from scratch
+        every REFRESH steps, or when more than CATCH_UP rows came in since the last call).
+        The coarse pass reads it after every sample. None before any sample.
+
+        The rows that left are found as window_rows finds them: the running time before
+        each row never decreases, nor does the window's lower bound ``total - 1 s``, so the
+        first row at or after that bound only moves forward."""
+        n, m = self._n, self._count
+        if n == 0:
+            return None
+        start, end, s0, s1, s2 = self._sec
+        lo = self._total - 1.0
+        steps = self._sec_steps + (m - end)
+        if m - end > self.CATCH_UP or start < m - n or steps >= self.REFRESH:
+            return self._second_from_scratch()
+        a, size = self._a, self.SIZE
+        for j in range(end, m):
+            _, _, _, _, g0, g1, g2 = a[j % size].tolist()
+            s0 += g0
+            s1 += g1
+            s2 += g2
+        before = self._before
+        while start < m and before[start % size] < lo:
+            _, _, _, _, g0, g1, g2 = a[start % size].tolist()
+            s0 -= g0
+            s1 -= g1
+            s2 -= g2
+            start += 1
+            steps += 1
+        if start == m:                  # no row within the second: the newest one alone
+            return self._second_from_scratch()
+        self._sec = (start, m, s0, s1, s2)
+        self._sec_steps = steps
+        k = m - start
+        return [s0 / k, s1 / k, s2 / k]
+
+    def _second_from_scratch(self) -> list[float]:
+        k = self.window_rows(1.0)
+        s0, s1, s2 = self._force_sum(k).tolist()
+        self._sec = (self._count - k, self._count, s0, s1, s2)
+        self._sec_steps = 0
+        return [s0 / k, s1 / k, s2 / k]
 
     def window_mean_forces(self, seconds: float, m: int) -> np.ndarray:
         """:meth:`mean_force` as it read after each of the newest ``m`` rows were pushed,
@@ -440,7 +500,7 @@ class UnitsMonitor:
             return None
         w0, w1, w2 = w.tolist()
         dR = np.array(so3_exp_entries(w0 * dt, w1 * dt, w2 * dt)).reshape(3, 3)
-        self.B = B = self.B @ dR
+        self.B = B = np.dot(self.B, dR)
         self.T += dt
         j = min(int(self.T), self.bins - 1)
         # scalar arithmetic on the 3-vectors (one sample: numpy calls cost more than the sums)
