@@ -9,7 +9,7 @@ import pytest
 from sins_align.core.rotation import attitude_error
 from sins_align.core.specs import DEG, DPSH
 from sins_align.estimators.in_motion import MotionAligner, MotionConfig
-from sins_align.estimators.in_motion.jitter import JitterMonitor
+from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
 from sins_align.sim.trajectory import (SEED003_SPECS, UAV_VIBRATION, Vibration,
                                        simulate_trajectory, uav_seed003)
 
@@ -89,10 +89,15 @@ def test_blocks_and_one_by_one_give_the_same_jitter():
     assert not seen[50].any() and seen[-1].any()
 
 
-def _vibrating_uav(seed, seconds=120.0, vibration=UAV_VIBRATION):
+def _vibrating_uav(seed, seconds=120.0, vibration=UAV_VIBRATION, clean=False):
+    """(e / sigma with the jitter, without it, the jitter's std) at every 0.1 s once the
+    heading is acquired; ``clean``: the same run with the accelerometer's vibration taken
+    out of the samples (every other error drawn the same)."""
     traj = uav_seed003()
     r = simulate_trajectory(traj, RATE, SEED003_SPECS, seed=seed, gnss_rate=10.0,
                             gnss_sigma=0.05, vibration=vibration, duration=seconds)
+    if clean:
+        r.accel = r.accel - (1.0 + r.accel_scale) * r.accel_vibration
     al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
                                     height_m=traj.height_m, specs=SEED003_SPECS,
                                     velocity_noise=0.05))
@@ -140,10 +145,96 @@ def test_vibrating_gyro_is_honest_with_the_jitter_and_not_without():
     assert np.all((lvl > 0.004) & (lvl < 0.02)), lvl
 
 
-@pytest.mark.xfail(strict=True, reason="accelerometer vibration: the IMU velocity's jitter "
-                   "(~0.012 m/s), sampled by the 10 Hz velocity updates, aliases to slow "
-                   "errors the filter takes for tilt (seed 1: 0.04 deg of north level)")
+@pytest.mark.xfail(strict=True, reason="not the vibration: seed 1 is beyond 3 sigma 4.8 % of "
+                   "the time with the accelerometer's vibration taken out of the samples too "
+                   "(4.2 % with it, corrected; 6.5 % before the correction); north level "
+                   "near 35-40 s and 65-85 s, cause open")
 def test_vibrating_accelerometer_is_honest():
     a, _, _ = _vibrating_uav(1, vibration=ACCEL_VIBRATION)
     over = (a > 3.0).any(axis=1).mean()
     assert over <= 0.015, over
+
+
+def _accel_tone(t, amp, freq, axis=0):
+    f = _tone_rates(t, amp, freq, axis)
+    f[:, 2] += 9.8
+    return f
+
+
+def test_velocity_jitter_of_a_tone():
+    """A 2 m/s^2 tone on the x accelerometer (interval means, as an IMU gives): the jitter
+    at a sample is the tone's zero-mean integral there, -amp / (2 pi f) cos(2 pi f t), to
+    3 % of its amplitude (sign included), nothing on the other axes, and the low-frequency
+    specific force is gravity. With stamps jittered by +-20 % of the interval it is still
+    within 30 % RMS (uncorrected: 71 %)."""
+    for jitter, bound, bound_rms in ((0.0, 0.03, 0.03), (0.2, None, 0.3)):
+        for freq in (20.3, 40.2, 79.7):
+            t = _stamps(5.0, jitter=jitter, seed=1)
+            f = _accel_tone(t, 2.0, freq)
+            vj = VelocityJitter(1.0)
+            vj.add(t[:100], f[:100])
+            amp = 2.0 / (2 * math.pi * freq)
+            err = []
+            for k in range(100, len(t)):
+                vj.add(t[k:k + 1], f[k:k + 1])
+                jit, f_lf = vj.at(t[k])
+                err.append(jit[0] + amp * math.cos(2 * math.pi * freq * t[k]))
+                assert abs(jit[1]) < 1e-9 and abs(jit[2]) < 1e-6
+                assert np.abs(f_lf - [0.0, 0.0, 9.8]).max() < 0.1 * (1 + 10 * jitter)
+            err = np.array(err) / amp
+            rms = math.sqrt(np.mean(err ** 2))
+            assert rms < bound_rms, (freq, jitter, rms)
+            if bound is not None:
+                assert np.abs(err).max() < bound, (freq, np.abs(err).max())
+    # no figure before the window holds 16 samples, nor at a stamp it does not hold
+    vj = VelocityJitter(1.0)
+    vj.add(t[:10], f[:10])
+    assert vj.at(t[9]) is None and vj.at(t[5] + 1e-4) is None
+
+
+def test_velocity_jitter_blocks_and_one_by_one_agree():
+    t = _stamps(4.0, jitter=0.3, seed=4)
+    f = _accel_tone(t, 3.0, 47.0) + _accel_tone(t, 1.0, 23.0, axis=1) - [0, 0, 9.8]
+    a, b = VelocityJitter(0.7), VelocityJitter(0.7)
+    asked = 0
+    for k in range(0, len(t), 37):
+        a.add(t[k:k + 37], f[k:k + 37])
+        for j in range(k, min(k + 37, len(t))):
+            b.add(t[j:j + 1], f[j:j + 1])
+        # questions about the samples of the last 0.7 s (keep: a rewind goes back so far)
+        e = min(k + 37, len(t))
+        for j in range(int(np.searchsorted(t, t[e - 1] - 0.7)), e, 3):
+            ra, rb = a.at(t[j]), b.at(t[j])
+            assert (ra is None) == (rb is None)
+            if ra is not None:
+                asked += 1
+                np.testing.assert_array_equal(ra[0], rb[0])
+                np.testing.assert_array_equal(ra[1], rb[1])
+    assert asked > 100
+
+
+def _over(runs):
+    a = np.concatenate([r[0] for r in runs])
+    return (a > 3.0).any(axis=1).mean()
+
+
+def test_vibrating_accelerometer_is_as_honest_as_without_vibration(monkeypatch):
+    """Seed 003's UAV with strong accelerometer vibration (3 m/s^2 RMS, 20-80 Hz): the
+    velocity updates compare the reference with the IMU velocity less its jitter
+    (VelocityJitter), and the attitude error is then beyond 3 sigma no more often than in
+    the same runs with the vibration taken out of the samples (+0.5 %). The test's teeth:
+    without the correction, or with its sign reversed, it is. Measured for seeds 0-2,
+    pooled: 2.1 % corrected, 2.3 % without vibration, 3.3 % uncorrected; 16 seeds: 1.2 %,
+    1.27 %, 1.77 %."""
+    seeds = (0, 1, 2)
+    clean = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION, clean=True) for s in seeds])
+    ours = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION) for s in seeds])
+    assert ours <= clean + 0.005, (ours, clean)
+    at = VelocityJitter.at
+    for name, patched in (("none", lambda self, t: None),
+                          ("reversed", lambda self, t: (lambda r: r and (-r[0], r[1]))(
+                              at(self, t)))):
+        monkeypatch.setattr(VelocityJitter, "at", patched)
+        bad = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION) for s in seeds])
+        assert bad > clean + 0.005, (name, bad, clean)
+    monkeypatch.undo()

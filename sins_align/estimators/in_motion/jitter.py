@@ -19,9 +19,18 @@ axes) of the larger of the last two windows is what
 attitude covariance. A white-noise gyro adds almost nothing (0.0002 deg for a
 0.1 deg/sqrt(h) MEMS).
 
-What it does not cover: the accelerometer's vibration makes the IMU velocity jitter too
-(~0.012 m/s with 3 m/s^2 RMS); sampled by the velocity updates it aliases to slow errors
-that the filter takes for tilt (``test/test_in_motion_jitter.py``, an expected failure).
+The accelerometer's vibration makes the IMU velocity jitter in the same way (~0.012 m/s
+with 3 m/s^2 RMS at 20-80 Hz: ``a / (2 pi f)``). The truth (and a velocity reference: GNSS
+Doppler is averaged over the receiver's interval) does not vibrate, so each velocity update
+would sample that jitter, and a tone near a multiple of the update rate aliases into a slow
+velocity error the filter takes for tilt. :class:`VelocityJitter` estimates the jitter at
+the update's sample from the accelerometer samples of the :data:`VELOCITY_WINDOW` s before
+it (their integral, body axes, minus a Hann-weighted cubic fit extrapolated to the end);
+the aligner compares the reference with the IMU velocity minus it (rotated to ENU by each
+filter's attitude). On seed 003's UAV this takes the vibration's part out of the attitude
+error: 16 seeds beyond 3 sigma 1.77 % of the instants with the vibration, 1.29 % with the
+correction, 1.27 % with the vibration removed from the samples
+(``test/test_in_motion_jitter.py``).
 
 Windows are delimited by the stamps alone, so a stream fed sample by sample and the same
 stream fed in blocks give the same figures at every sample.
@@ -30,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["JitterMonitor", "WINDOW", "CUTOFF"]
+__all__ = ["JitterMonitor", "VelocityJitter", "WINDOW", "CUTOFF", "VELOCITY_WINDOW"]
 
 #: s of samples per window
 WINDOW = 1.0
@@ -38,6 +47,10 @@ WINDOW = 1.0
 CUTOFF = 5.0
 #: fewer samples than this in a window (a very slow stream): no figure from it
 _MIN_SAMPLES = 16
+#: s of accelerometer samples before a velocity update that :class:`VelocityJitter` fits
+VELOCITY_WINDOW = 0.5
+#: degree of the polynomial in time fitted to their integral
+_VELOCITY_DEGREE = 2
 
 
 class JitterMonitor:
@@ -98,3 +111,70 @@ class JitterMonitor:
         cov = 0.5 * (cov + cov.T)
         self.covariance = cov if np.trace(cov) >= np.trace(self._last) else self._last
         self._last = cov
+
+
+class VelocityJitter:
+    """High-frequency part of the IMU velocity at a sample, from the accelerometer samples.
+
+    Feed it every accepted sample, in order (:meth:`add`); :meth:`at` gives, at the sample
+    stamped ``t``, the jitter of the integrated specific force (body axes, m/s) and the
+    low-frequency specific force (body axes, m/s^2), from the samples of the
+    :data:`VELOCITY_WINDOW` s up to and including that one: the integral
+    ``V_j = sum f_j dt_j`` is fitted by a cubic in time by least squares weighted by a Hann
+    window over ``[t - VELOCITY_WINDOW, t]`` (the weight vanishes at both ends: the fit's
+    response to 20-80 Hz tones is a few percent, its error on manoeuvres below 0.003 m/s
+    on seed 003's UAV); the jitter is ``V`` at the sample minus the fit there, the
+    low-frequency specific force the fit's slope there. What the window holds depends only
+    on the stamps: a stream fed sample by sample and in blocks gives the same figures.
+
+    ``keep`` s: how far a question may go back before an earlier one (a rewind); samples
+    older than that (and the window) before the last question are dropped.
+    """
+
+    def __init__(self, keep: float):
+        self.keep = float(keep) + VELOCITY_WINDOW
+        self._t = np.empty(0)
+        self._f = np.empty((0, 3))
+        self._new: list = []                     # (t, f) blocks not yet joined
+
+    def add(self, t, f) -> None:
+        """Accepted samples: stamps t (n,) s, increasing; specific force f (n, 3) m/s^2."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        if not len(t):
+            return
+        self._new.append((t, np.asarray(f, dtype=float).reshape(-1, 3)))
+        if len(self._new) >= 32:            # (questions come after this block's start)
+            self._join(float(t[0]))
+
+    def _join(self, t_query: float) -> None:
+        """Join the new blocks; drop what is older than ``keep`` s before ``t_query`` (a
+        block fed at once may reach far beyond the sample asked about)."""
+        if self._new:
+            self._t = np.concatenate([self._t] + [b[0] for b in self._new])
+            self._f = np.concatenate([self._f] + [b[1] for b in self._new])
+            self._new = []
+        i = int(np.searchsorted(self._t, t_query - self.keep, "left"))
+        if i > 0:
+            self._t = self._t[i:]
+            self._f = self._f[i:]
+
+    def at(self, t: float):
+        """(jitter (3,) m/s, low-frequency specific force (3,) m/s^2), body axes, at the
+        sample stamped ``t``; None when that sample is not held or the window holds fewer
+        than 16 samples (the stream's first moments)."""
+        self._join(t)
+        ts = self._t
+        i1 = int(np.searchsorted(ts, t, "right"))
+        if i1 == 0 or ts[i1 - 1] != t:
+            return None
+        i0 = int(np.searchsorted(ts, t - VELOCITY_WINDOW, "right"))
+        if i1 - i0 < _MIN_SAMPLES:
+            return None
+        tw = ts[i0:i1]
+        V = np.zeros((i1 - i0, 3))
+        np.cumsum(self._f[i0 + 1:i1] * np.diff(tw)[:, None], axis=0, out=V[1:])
+        x = (tw - t) / VELOCITY_WINDOW                       # (-1, 0]
+        sw = np.sin(np.pi * x)                               # sqrt of the Hann weight
+        B = np.vander(x, _VELOCITY_DEGREE + 1, increasing=True) * sw[:, None]
+        coef = np.linalg.lstsq(B, V * sw[:, None], rcond=None)[0]
+        return V[-1] - coef[0], coef[1] / VELOCITY_WINDOW
