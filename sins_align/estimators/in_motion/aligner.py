@@ -120,7 +120,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._applied: deque = deque()           # measurements applied, within the lag
         self._history: deque = deque()           # accepted samples (t, gyro, accel) arrays
         self._jitter = JitterMonitor()
-        self._vjitter = VelocityJitter(c.max_measurement_lag + _HISTORY_MARGIN + 1.0)
+        self._vjitter = VelocityJitter(c.max_measurement_lag + _HISTORY_MARGIN
+                                       + c.velocity_averaging + 1.0)
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
         self._next_nhc: float | None = None
         self._nis: deque = deque()               # (t, nis per dof, dof)
@@ -598,9 +599,10 @@ class MotionAligner(EventSource, AttitudeReadout):
         if kind == "velocity":
             z, R = payload
             # the reference does not vibrate, the IMU velocity does: compare the reference
-            # with the IMU velocity less its high-frequency part at this sample (jitter.py),
-            # that part rotated to ENU by each filter's attitude
-            hf = self._vjitter.at(t_now)
+            # with the IMU velocity less its jitter at this sample (jitter.py), rotated to
+            # ENU by each filter's attitude
+            T = self.config.velocity_averaging
+            hf = self._vjitter.at(t_now, T) if T > 0.0 else None
             f_now = ekf.f_last[self._best]
             if hf is not None:
                 jit, f_lf = hf

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["JitterMonitor", "VelocityJitter", "WINDOW", "CUTOFF", "VELOCITY_WINDOW"]
+__all__ = ["JitterMonitor", "VelocityJitter", "WINDOW", "CUTOFF"]
 
 #: s of samples per window
 WINDOW = 1.0
@@ -47,10 +47,6 @@ WINDOW = 1.0
 CUTOFF = 5.0
 #: fewer samples than this in a window (a very slow stream): no figure from it
 _MIN_SAMPLES = 16
-#: s of accelerometer samples before a velocity update that :class:`VelocityJitter` fits
-VELOCITY_WINDOW = 0.5
-#: degree of the polynomial in time fitted to their integral
-_VELOCITY_DEGREE = 2
 
 
 class JitterMonitor:
@@ -114,25 +110,29 @@ class JitterMonitor:
 
 
 class VelocityJitter:
-    """High-frequency part of the IMU velocity at a sample, from the accelerometer samples.
+    """The jitter of the IMU velocity at a sample, from the accelerometer samples.
 
-    Feed it every accepted sample, in order (:meth:`add`); :meth:`at` gives, at the sample
-    stamped ``t``, the jitter of the integrated specific force (body axes, m/s) and the
-    low-frequency specific force (body axes, m/s^2), from the samples of the
-    :data:`VELOCITY_WINDOW` s up to and including that one: the integral
-    ``V_j = sum f_j dt_j`` is fitted by a cubic in time by least squares weighted by a Hann
-    window over ``[t - VELOCITY_WINDOW, t]`` (the weight vanishes at both ends: the fit's
-    response to 20-80 Hz tones is a few percent, its error on manoeuvres below 0.003 m/s
-    on seed 003's UAV); the jitter is ``V`` at the sample minus the fit there, the
-    low-frequency specific force the fit's slope there. What the window holds depends only
-    on the stamps: a stream fed sample by sample and in blocks gives the same figures.
+    Feed it every accepted sample, in order (:meth:`add`). :meth:`at` looks at the
+    velocity integrated from the specific force (body axes) over an interval ``T`` before
+    a sample (from the sample nearest to ``t - T`` to the one stamped ``t``) and gives the
+    mean of its two ends less its time-mean over the interval (trapezoids): zero for a
+    velocity that changes linearly, ``j T^2 / 12`` for a jerk ``j`` (0.001 m/s for 1 m/s^3
+    at T = 0.1 s), 3 % of the velocity's swing for a 1 Hz motion, 13 % at 2 Hz. For a tone
+    of a few tens of Hz the time-mean is small (``|sinc(f T)|`` of it), and the two ends
+    carry the jitter ``a / (2 pi f)`` at ``t`` and at ``t - T``: the figure is the jitter at
+    ``t`` in full when the tone is near a multiple of ``1 / T`` (sampled every ``T`` s it
+    would alias to a slow error), and nothing when it is halfway between (it alias to the
+    fastest error such updates can see, which averages out). What is left of the jitter
+    in the updates is the difference of consecutive ones: high-pass, so no slow error.
 
-    ``keep`` s: how far a question may go back before an earlier one (a rewind); samples
-    older than that (and the window) before the last question are dropped.
+    What it holds and gives depends only on the stamps: a stream fed sample by sample and
+    in blocks gives the same figures. ``keep`` s: how far before the newest sample (or the
+    last question) the interval of a question may start (a rewind, the interval and a
+    sample); older samples are dropped.
     """
 
     def __init__(self, keep: float):
-        self.keep = float(keep) + VELOCITY_WINDOW
+        self.keep = float(keep)
         self._t = np.empty(0)
         self._f = np.empty((0, 3))
         self._new: list = []                     # (t, f) blocks not yet joined
@@ -158,23 +158,26 @@ class VelocityJitter:
             self._t = self._t[i:]
             self._f = self._f[i:]
 
-    def at(self, t: float):
-        """(jitter (3,) m/s, low-frequency specific force (3,) m/s^2), body axes, at the
-        sample stamped ``t``; None when that sample is not held or the window holds fewer
-        than 16 samples (the stream's first moments)."""
+    def at(self, t: float, interval: float):
+        """(jitter (3,) m/s, mean specific force (3,) m/s^2), body axes, at the sample
+        stamped ``t``, over the ``interval`` s before it (see the class); None when that
+        sample is not held or the interval holds fewer than two sample intervals."""
         self._join(t)
         ts = self._t
-        i1 = int(np.searchsorted(ts, t, "right"))
-        if i1 == 0 or ts[i1 - 1] != t:
+        i1 = int(np.searchsorted(ts, t, "right")) - 1
+        if i1 < 0 or ts[i1] != t:
             return None
-        i0 = int(np.searchsorted(ts, t - VELOCITY_WINDOW, "right"))
-        if i1 - i0 < _MIN_SAMPLES:
+        # the window starts at the sample nearest to t - interval
+        i0 = int(np.searchsorted(ts, t - interval, "left"))
+        if i0 > 0 and (i0 > i1 or (t - interval) - ts[i0 - 1] < ts[i0] - (t - interval)):
+            i0 -= 1
+        if i1 - i0 < 2:
             return None
-        tw = ts[i0:i1]
-        V = np.zeros((i1 - i0, 3))
-        np.cumsum(self._f[i0 + 1:i1] * np.diff(tw)[:, None], axis=0, out=V[1:])
-        x = (tw - t) / VELOCITY_WINDOW                       # (-1, 0]
-        sw = np.sin(np.pi * x)                               # sqrt of the Hann weight
-        B = np.vander(x, _VELOCITY_DEGREE + 1, increasing=True) * sw[:, None]
-        coef = np.linalg.lstsq(B, V * sw[:, None], rcond=None)[0]
-        return V[-1] - coef[0], coef[1] / VELOCITY_WINDOW
+        tw = ts[i0:i1 + 1]
+        dt = np.diff(tw)
+        dv = self._f[i0 + 1:i1 + 1] * dt[:, None]
+        V = np.cumsum(dv, axis=0)                  # from the window's first sample (V = 0)
+        T = tw[-1] - tw[0]
+        # the time-mean of V over the window (trapezoids; V_0 = 0)
+        mean = (0.5 * dt[0] * V[0] + 0.5 * (dt[1:, None] * (V[1:] + V[:-1])).sum(axis=0)) / T
+        return 0.5 * V[-1] - mean, V[-1] / T
