@@ -942,7 +942,8 @@ def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
     if not quasi_static:
         out.update(estimator="in_motion", longitude_deg=config.longitude_deg,
                    lever_arm_m=list(config.lever_arm), velocity_noise_mps=config.velocity_noise,
-                   max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle)
+                   max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle,
+                   velocity_averaging_s=config.velocity_averaging)
     return out
 
 
