@@ -9,7 +9,7 @@ import pytest
 from sins_align.core.rotation import attitude_error
 from sins_align.core.specs import DEG, DPSH
 from sins_align.estimators.in_motion import MotionAligner, MotionConfig
-from sins_align.estimators.in_motion.jitter import JitterMonitor
+from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
 from sins_align.sim.trajectory import (SEED003_SPECS, UAV_VIBRATION, Vibration,
                                        simulate_trajectory, uav_seed003)
 
@@ -89,10 +89,15 @@ def test_blocks_and_one_by_one_give_the_same_jitter():
     assert not seen[50].any() and seen[-1].any()
 
 
-def _vibrating_uav(seed, seconds=120.0, vibration=UAV_VIBRATION):
+def _vibrating_uav(seed, seconds=120.0, vibration=UAV_VIBRATION, clean=False):
+    """(e / sigma with the jitter, without it, the jitter's std) at every 0.1 s once the
+    heading is acquired; ``clean``: the same run with the accelerometer's vibration taken
+    out of the samples (every other error drawn the same)."""
     traj = uav_seed003()
     r = simulate_trajectory(traj, RATE, SEED003_SPECS, seed=seed, gnss_rate=10.0,
                             gnss_sigma=0.05, vibration=vibration, duration=seconds)
+    if clean:
+        r.accel = r.accel - (1.0 + r.accel_scale) * r.accel_vibration
     al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
                                     height_m=traj.height_m, specs=SEED003_SPECS,
                                     velocity_noise=0.05))
@@ -140,10 +145,134 @@ def test_vibrating_gyro_is_honest_with_the_jitter_and_not_without():
     assert np.all((lvl > 0.004) & (lvl < 0.02)), lvl
 
 
-@pytest.mark.xfail(strict=True, reason="accelerometer vibration: the IMU velocity's jitter "
-                   "(~0.012 m/s), sampled by the 10 Hz velocity updates, aliases to slow "
-                   "errors the filter takes for tilt (seed 1: 0.04 deg of north level)")
+@pytest.mark.xfail(strict=True, reason="not the vibration: seed 1 is beyond 3 sigma 4.8 % of "
+                   "the time with the accelerometer's vibration taken out of the samples too "
+                   "(3.7 % with it, corrected; 6.5 % uncorrected): north level near 35-40 s "
+                   "and 65-85 s, cause open (its y accelerometer bias is a 2.7-sigma draw)")
 def test_vibrating_accelerometer_is_honest():
     a, _, _ = _vibrating_uav(1, vibration=ACCEL_VIBRATION)
     over = (a > 3.0).any(axis=1).mean()
     assert over <= 0.015, over
+
+
+def _accel_tone(t, amp, freq, axis=0):
+    f = _tone_rates(t, amp, freq, axis)
+    f[:, 2] += 9.8
+    return f
+
+
+def test_velocity_jitter_of_a_tone():
+    """A 2 m/s^2 tone on the x accelerometer (interval means, as an IMU gives), velocity
+    updates every T = 0.1 s: uncorrected, each update sees the tone's velocity jitter
+    J = -amp / (2 pi f) cos(2 pi f t), an alias at the distance f_a of f from the nearest
+    multiple of 10 Hz (slow for 40.2 Hz). Corrected, what is left, J - jitter, is at most
+    sin(pi f_a T) + 3 % of J's amplitude: the slower the alias, the less is left (sign
+    included: reversed, 2 J would be left). With stamps jittered by +-20 % of the interval
+    (the interval then varies by a sample) what is left reaches J at times, but its slow
+    part (1 s means of the updates) stays within the bound + 10 %. Nothing on the other
+    axes; the mean specific force is gravity (within the two ends' jitter over T). Real
+    motion at 1 Hz loses at most 4 % of its velocity swing ((2 pi f T)^2 / 12 = 3.3 %)."""
+    T = 0.1
+    for jitter, extra in ((0.0, 0.03), (0.2, 0.13)):
+        for freq in (20.3, 40.2, 79.7, 45.0, 33.3, 1.0):
+            t = _stamps(5.0, jitter=jitter, seed=1)
+            amp_f = 1.0 if freq == 1.0 else 2.0
+            f = _accel_tone(t, amp_f, freq)
+            vj = VelocityJitter(1.0)
+            vj.add(t[:100], f[:100])
+            amp = amp_f / (2 * math.pi * freq)
+            f_a = abs(freq - 10.0 * round(freq / 10.0))
+            bound = 0.04 if freq == 1.0 else math.sin(math.pi * f_a * T) + extra
+            left = []
+            for k in range(100, len(t)):
+                vj.add(t[k:k + 1], f[k:k + 1])
+                jit, f_mean = vj.at(t[k], T)
+                J = 0.0 if freq == 1.0 else -amp * math.cos(2 * math.pi * freq * t[k])
+                left.append(J - jit[0])
+                assert abs(jit[1]) < 1e-9 and abs(jit[2]) < 1e-6
+                # (a tone: the difference of the two ends' jitter over T)
+                assert np.abs(f_mean - [0.0, 0.0, 9.8]).max() < (
+                    1.01 * amp_f if freq == 1.0 else 2.0 * amp / T + 0.01)
+            left = np.array(left) / amp
+            # what the updates every T see of it, averaged over 1 s: its slow part
+            slow = np.convolve(left[::10], np.ones(10) / 10, "valid")
+            assert np.abs(slow).max() < bound, (freq, jitter, np.abs(slow).max(), bound)
+            worst = bound if not jitter else 1.1
+            assert np.abs(left).max() < worst, (freq, jitter, np.abs(left).max(), worst)
+    # no figure without two intervals before the sample, nor at a stamp it does not hold
+    vj = VelocityJitter(1.0)
+    vj.add(t[:2], f[:2])
+    assert vj.at(t[1], T) is None and vj.at(t[1] + 1e-4, T) is None
+    vj.add(t[2:3], f[2:3])
+    assert vj.at(t[2], T) is not None
+
+
+def test_velocity_jitter_equals_its_definition():
+    """The closed form (first moment of the specific force about the window's middle)
+    equals the definition: the integrated velocity's two ends' mean less its time-mean
+    (trapezoids), over the samples from the one nearest to t - T to t; jittered stamps."""
+    t = _stamps(3.0, jitter=0.3, seed=7)
+    rng = np.random.default_rng(7)
+    f = rng.normal(0.0, 3.0, (len(t), 3)) + [0.0, 0.0, 9.8]
+    vj = VelocityJitter(5.0)
+    vj.add(t, f)
+    for k in range(20, len(t), 13):
+        for T in (0.05, 0.1, 0.23):
+            i0 = int(np.argmin(np.abs(t[:k + 1] - (t[k] - T))))
+            tw = t[i0:k + 1]
+            V = np.concatenate([[np.zeros(3)], np.cumsum(f[i0 + 1:k + 1] * np.diff(tw)[:, None],
+                                                         axis=0)])
+            mean = ((V[1:] + V[:-1]) * 0.5 * np.diff(tw)[:, None]).sum(0) / (tw[-1] - tw[0])
+            jit, f_mean = vj.at(t[k], T)
+            np.testing.assert_allclose(jit, 0.5 * (V[0] + V[-1]) - mean, rtol=0, atol=1e-13)
+            np.testing.assert_allclose(f_mean, V[-1] / (tw[-1] - tw[0]), rtol=1e-13)
+
+
+def test_velocity_jitter_blocks_and_one_by_one_agree():
+    t = _stamps(4.0, jitter=0.3, seed=4)
+    f = _accel_tone(t, 3.0, 47.0) + _accel_tone(t, 1.0, 23.0, axis=1) - [0, 0, 9.8]
+    a, b = VelocityJitter(0.7 + 0.1 + 0.02), VelocityJitter(0.7 + 0.1 + 0.02)
+    asked = 0
+    for k in range(0, len(t), 37):
+        a.add(t[k:k + 37], f[k:k + 37])
+        for j in range(k, min(k + 37, len(t))):
+            b.add(t[j:j + 1], f[j:j + 1])
+        # questions about the samples of the last 0.7 s (a rewind goes back so far; keep:
+        # that, the 0.1 s interval and a sample)
+        e = min(k + 37, len(t))
+        for j in range(int(np.searchsorted(t, t[e - 1] - 0.7)), e, 3):
+            ra, rb = a.at(t[j], 0.1), b.at(t[j], 0.1)
+            assert (ra is None) == (rb is None)
+            if ra is not None:
+                asked += 1
+                np.testing.assert_array_equal(ra[0], rb[0])
+                np.testing.assert_array_equal(ra[1], rb[1])
+    assert asked > 100
+
+
+def _over(runs):
+    a = np.concatenate([r[0] for r in runs])
+    return (a > 3.0).any(axis=1).mean()
+
+
+def test_vibrating_accelerometer_is_as_honest_as_without_vibration(monkeypatch):
+    """Seed 003's UAV with strong accelerometer vibration (3 m/s^2 RMS, 20-80 Hz): the
+    velocity updates compare the reference with the IMU velocity less its jitter
+    (VelocityJitter), and the attitude error is then beyond 3 sigma no more often than in
+    the same runs with the vibration taken out of the samples (+0.5 %). The test's teeth:
+    without the correction, or with its sign reversed, it is. Measured for seeds 0-2,
+    pooled: 2.0 % corrected, 2.3 % without vibration, 3.3 % uncorrected; 16 seeds: 1.07 %,
+    1.27 %, 1.77 %. (The 1.5 % of the test above is out of reach for seeds 0-2 without
+    any vibration.)"""
+    seeds = (0, 1, 2)
+    clean = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION, clean=True) for s in seeds])
+    ours = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION) for s in seeds])
+    assert ours <= clean + 0.005, (ours, clean)
+    at = VelocityJitter.at
+    for name, patched in (("none", lambda self, t, T: None),
+                          ("reversed", lambda self, t, T: (lambda r: r and (-r[0], r[1]))(
+                              at(self, t, T)))):
+        monkeypatch.setattr(VelocityJitter, "at", patched)
+        bad = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION) for s in seeds])
+        assert bad > clean + 0.005, (name, bad, clean)
+    monkeypatch.undo()

@@ -38,6 +38,7 @@ BASE = {"latitude": 34.0}
     ("lever_arm", [0.0, 0.0, -1500.0], "lever_arm components must be within [-1000, 1000] m"),
     ("velocity_noise", 0.0, "velocity_noise must be within [0.0001, 100], got 0"),
     ("max_measurement_lag", -0.1, "max_measurement_lag must be within [0, 60]"),
+    ("velocity_averaging", 1.5, "velocity_averaging must be within [0, 1]"),
     ("vehicle", "car", "vehicle must be one of ground, air, marine, got 'car'"),
     ("navsat_topic", True, "navsat_topic must be a string"),
     ("longitude", 181.0, "longitude must be within [-180, 180], got 181"),
@@ -79,6 +80,7 @@ def test_a_velocity_topic_builds_the_in_motion_estimator_from_the_parameters():
     values = {**BASE, "velocity_topic": "gnss/fix_velocity", "velocity_type": "odometry",
               "velocity_frame": "ned", "lever_arm": [0.5, -0.2, 1.25], "velocity_noise": 0.3,
               "max_measurement_lag": 0.8, "vehicle": "ground", "longitude": 108.5,
+              "velocity_averaging": 0.2,
               "height": 412.0, "grade": "consumer", "initial_rpy": [1.0, 2.0, 30.0],
               "max_gap": 2.0, "max_angular_rate": 5.0, "attitude_matching": True}
     cfg = P.estimator_config(values)
@@ -86,6 +88,7 @@ def test_a_velocity_topic_builds_the_in_motion_estimator_from_the_parameters():
     assert (cfg.latitude_deg, cfg.longitude_deg, cfg.height_m) == (34.0, 108.5, 412.0)
     assert cfg.lever_arm == (0.5, -0.2, 1.25)
     assert (cfg.velocity_noise, cfg.max_measurement_lag, cfg.vehicle) == (0.3, 0.8, "ground")
+    assert cfg.velocity_averaging == 0.2
     assert cfg.initial_rpy_deg == (1.0, 2.0, 30.0)
     # in motion: max_gap at most 1 s, max_angular_rate at least 10 rad/s
     assert (cfg.max_gap, cfg.max_angular_rate, cfg.attitude_matching) == (1.0, 10.0, True)

@@ -136,6 +136,10 @@ PARAMS: tuple[ParamSpec, ...] = (
               "master INS), m, in the IMU frame.", rule=_check_lever_arm),
     ParamSpec("velocity_noise", 0.1, "Velocity reference noise 1-sigma, m/s, for messages "
               "without a covariance.", 1e-4, 100.0),
+    ParamSpec("velocity_averaging", 0.1, "Interval over which the velocity reference is "
+              "compared with the IMU velocity less its vibration jitter, s: the interval "
+              "between velocity messages (0.1 at 10 Hz); 0 compares with the IMU velocity at "
+              "the message's sample as it is.", 0.0, 1.0),
     ParamSpec("max_measurement_lag", 0.5, "Velocity messages may arrive this much after the "
               "IMU passed their stamp, s (later ones are rejected).", 0.0, 60.0),
     ParamSpec("vehicle", "air", "Vehicle kind: ground (adds the non-holonomic constraint of a "
@@ -402,6 +406,7 @@ def motion_config_from_params(values: dict[str, Any]):
         height_m=float(m["height"]), specs=sensor_specs(m),
         lever_arm=tuple(float(x) for x in m["lever_arm"]),
         velocity_noise=float(m["velocity_noise"]),
+        velocity_averaging=float(m["velocity_averaging"]),
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
         nhc_axis=int(m["lateral_axis"]),
         nhc_lever_arm=tuple(float(x) for x in m["nhc_lever_arm"]),

@@ -1106,7 +1106,8 @@ def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
     if not quasi_static:
         out.update(estimator="in_motion", longitude_deg=config.longitude_deg,
                    lever_arm_m=list(config.lever_arm), velocity_noise_mps=config.velocity_noise,
-                   max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle)
+                   max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle,
+                   velocity_averaging_s=config.velocity_averaging)
         if config.vehicle == "ground":
             out.update(nhc_lever_arm_m=list(config.nhc_lever_arm),
                        nhc_lever_arm_std_m=config.nhc_lever_arm_std,

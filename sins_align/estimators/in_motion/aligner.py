@@ -42,7 +42,7 @@ from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFee
                                                       lqr_gain)
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel)
-from sins_align.estimators.in_motion.jitter import JitterMonitor
+from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 
 __all__ = ["MotionAligner", "MOTION_REJECT_REASONS", "MOTION_STATES"]
@@ -120,6 +120,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._applied: deque = deque()           # measurements applied, within the lag
         self._history: deque = deque()           # accepted samples (t, gyro, accel) arrays
         self._jitter = JitterMonitor()
+        self._vjitter = VelocityJitter(c.max_measurement_lag + _HISTORY_MARGIN
+                                       + c.velocity_averaging + 1.0)
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
         self._next_nhc: float | None = None
         self._nis: deque = deque()               # (t, nis per dof, dof)
@@ -308,6 +310,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         if self.t_first is None:
             self.t_first = float(t[0])
         self._jitter.add(t, w)
+        self._vjitter.add(t, f)
         k = 0
         if self.ekf is None:
             k = self._initialize(t, w, f)
@@ -606,18 +609,29 @@ class MotionAligner(EventSource, AttitudeReadout):
         ekf = self.ekf
         if kind == "velocity":
             z, R = payload
+            # the reference does not vibrate, the IMU velocity does: compare the reference
+            # with the IMU velocity less its jitter at this sample (jitter.py), rotated to
+            # ENU by each filter's attitude
+            T = self.config.velocity_averaging
+            hf = self._vjitter.at(t_now, T) if T > 0.0 else None
+            f_now = ekf.f_last[self._best]
+            if hf is not None:
+                jit, f_lf = hf
+                z = z + np.einsum("kij,j->ki", ekf.C, jit)
+                b = self._best
+                f_now = (f_lf - ekf.ba[b]) / (1.0 + ekf.sa[b])
             # the measurement is of the instant ts, the state of t_now (>= ts, within a
-            # sample): move it by the acceleration over the difference
+            # sample): move it by the (low-frequency) acceleration over the difference
             if t_now > ts:
                 b = self._best
-                acc = ekf.C[b] @ ekf.f_last[b]
+                acc = ekf.C[b] @ f_now
                 acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
                 z = z + (t_now - ts) * acc
             nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate)
             self.events["velocity"] += 1
             if nis[self._best] > self.config.nis_inflate:
                 self.events["velocity_inflated"] += 1
-            self._weigh(t_now, nis, ll, int(np.isfinite(z).sum()))
+            self._weigh(t_now, nis, ll, int(np.isfinite(payload[0]).sum()))
         elif kind == "attitude":
             Cm, R = payload
             nis, ll = ekf.update_attitude(Cm, R, self.config.nis_inflate)

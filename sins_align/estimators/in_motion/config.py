@@ -32,6 +32,12 @@ class MotionConfig:
     lever_arm : (3,) m, IMU frame — from the IMU to the antenna of the velocity reference.
     lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (15 states).
     velocity_noise : m/s — 1-sigma of a velocity measurement that comes without covariance.
+    velocity_averaging : s — the reference is compared with the IMU velocity less its jitter
+        over this interval before the measurement's sample (the velocity's trapezoid less
+        its mean over it: :class:`~sins_align.estimators.in_motion.jitter.VelocityJitter`),
+        which takes out the part of the accelerometer's vibration that the updates would
+        alias slowly; the interval between the reference's measurements (GNSS at 10 Hz:
+        0.1); 0: compare with the IMU velocity at the sample as it is.
     max_measurement_lag : s — a measurement stamped up to this long before the newest IMU
         sample is applied at its stamp (the filter rewinds); older ones are refused.
     vehicle : 'ground' | 'air' | 'marine'; 'ground' applies the non-holonomic constraint.
@@ -93,6 +99,7 @@ class MotionConfig:
     lever_arm: tuple = (0.0, 0.0, 0.0)
     lever_arm_std: float = 0.0
     velocity_noise: float = 0.1
+    velocity_averaging: float = 0.1
     max_measurement_lag: float = 0.5
     vehicle: str = "air"
     nhc_noise: float = 0.1
@@ -162,7 +169,8 @@ class MotionConfig:
                 raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
         for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m",
                      "mounting_std_deg", "gyro_scale_std", "accel_scale_std",
-                     "nhc_lever_arm_std", "nhc_slip_deg", "nhc_slip_time"):
+                     "nhc_lever_arm_std", "nhc_slip_deg", "nhc_slip_time",
+                     "velocity_averaging"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x)):
                 raise ValueError(f"{name} must be finite, got {x!r}")
@@ -172,3 +180,6 @@ class MotionConfig:
             raise ValueError("lever_arm_std, nhc_lever_arm_std, nhc_slip_deg, nhc_slip_time, "
                              "max_measurement_lag, mounting_std_deg and the scale-factor stds "
                              "must be >= 0")
+        if not 0.0 <= self.velocity_averaging <= 1.0:
+            raise ValueError(f"velocity_averaging must be within [0, 1] s, got "
+                             f"{self.velocity_averaging!r}")

@@ -536,17 +536,17 @@ class InvariantEKF:
 
     def update_velocity(self, z, R, nis_limit=None):
         """Velocity of the antenna, ENU: (3,) for every filter, NaN components not measured,
-        R (3, 3); or (K, 3) and R (K, 3, 3), each filter its own (all finite).
+        R (3, 3); or (K, 3), each filter its own (a component NaN in every row or in none),
+        and R (3, 3) or (K, 3, 3).
         Returns (NIS per dof, log-likelihood), each (K,)."""
         z = np.asarray(z, dtype=float)
         z_hat, H = self.velocity_model()
         R = np.asarray(R, dtype=float)
-        if z.ndim == 2:
-            return self._apply(z - z_hat, H, R, nis_limit)
-        ok = np.isfinite(z)
+        ok = np.isfinite(z) if z.ndim == 1 else np.isfinite(z).all(axis=0)
         if ok.all():
             return self._apply(z - z_hat, H, R, nis_limit)
-        return self._apply((z - z_hat)[:, ok], H[:, ok], R[np.ix_(ok, ok)], nis_limit)
+        Rk = R[np.ix_(ok, ok)] if R.ndim == 2 else R[:, ok][:, :, ok]
+        return self._apply((z - z_hat)[:, ok], H[:, ok], Rk, nis_limit)
 
     def update_lateral(self, axis: int, sigma: float, nis_limit=None, slip: float = 0.0,
                        slip_updates: float = 1.0):
