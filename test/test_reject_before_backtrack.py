@@ -1,4 +1,5 @@
-"""A sample rejected *before* the backtrack: block feeding and one sample per call agree.
+"""A sample rejected (or lost) *before* the backtrack: block feeding and one sample per call
+agree.
 
 The rejected sample leaves a double interval in the buffer the backtrack re-runs. Its end
 or its midpoint can land exactly on a threshold: a coarse or fine update (the clock in the
@@ -35,8 +36,11 @@ def _bad(s, kind, k):
     t, w, f = s.t.copy(), s.gyro.copy(), s.accel.copy()
     if kind == "nan":
         w[k, 0] = np.nan
-    else:                                   # a rate spike above max_angular_rate
+    elif kind == "spike":                   # a rate spike above max_angular_rate
         w[k, 2] = 5.0
+    else:                                   # the sample lost: the same double interval
+        keep = np.arange(len(t)) != k
+        t, w, f = t[keep], w[keep], f[keep]
     return t, w, f
 
 
@@ -56,6 +60,7 @@ def _same(a, b, where):
     ("spike", 400),
     ("nan", 398),      # its end on a coarse and a fine update (0.1 s, 1 s less half of it)
     ("spike", 998),    # its end on the backtrack (10 s less half of it)
+    ("drop", 998),     # a lost sample leaves the same double interval
 ])
 def test_rejection_before_backtrack_blocks_equal_one_by_one(sway, kind, k):
     t, w, f = _bad(sway, kind, k)
@@ -65,8 +70,8 @@ def test_rejection_before_backtrack_blocks_equal_one_by_one(sway, kind, k):
     for i in range(len(t)):
         one.update(float(t[i]), w[i], f[i])
         ref.append(_read(one))
-    reason = "nonfinite" if kind == "nan" else "rate_too_high"
-    assert one.rejected == {reason: 1} and one.stage == "fine"
+    reason = {"nan": {"nonfinite": 1}, "spike": {"rate_too_high": 1}, "drop": {}}[kind]
+    assert one.rejected == reason and one.stage == "fine"
     for size in (100, 777):
         al = Aligner(cfg)
         for a in range(0, len(t), size):
@@ -77,7 +82,7 @@ def test_rejection_before_backtrack_blocks_equal_one_by_one(sway, kind, k):
     whole.update(t, w, f)
     _same(_read(whole), ref[-1], "one array")
     st = Aligner(cfg).update_states(t, w, f)
-    assert st.accepted.sum() == len(t) - 1 and not st.accepted[k]
+    assert st.accepted.sum() == len(t) - len(reason) and (kind == "drop" or not st.accepted[k])
     for i in range(len(t)):
         assert np.abs(st.dcm[i] - ref[i][0]).max() <= 1e-9, i
         np.testing.assert_allclose(st.covariance[i], ref[i][1], rtol=1e-9,
