@@ -21,7 +21,7 @@ from sins_align.core.models import (averaged_measurement_matrix,
 from sins_align.core.preint import open_loop_velocity, start_frame_increments
 from sins_align.core.rotation import so3_exp, so3_log
 from sins_align.core.specs import DEG
-from sins_align.estimators.quasi_static.fast_path import FAST_MIN_BLOCK
+from sins_align.estimators.quasi_static.fast_path import DUE_TOL, FAST_MIN_BLOCK
 from sins_align.estimators.quasi_static.inertial import inertial_alignment
 
 
@@ -213,7 +213,11 @@ class Backtrack:
         q = np.full(self.n, q_cfg)
         for mult in (1, 2, 5, 10, 20):
             p = base * mult
-            idx = np.floor((t - 0.5 * dt) / p).astype(int)   # sample midpoints: no ties
+            # by the sample midpoints, a hair early: the midpoint of a double interval (a
+            # rejected or missing sample) can fall on a boundary, where rounding would decide
+            # (the fine pass's updates count that sample in the interval it closes, the
+            # earlier one: fast_path.reached)
+            idx = np.floor((t - (0.5 + DUE_TOL) * dt) / p).astype(int)
             n_int = int(idx[-1])
             if n_int < 8:
                 break

@@ -25,6 +25,13 @@ from sins_align.core.rotation import dcm_entries_from_quat, so3_exp, so3_exp_ent
 FAST_MIN_BLOCK = 64
 #: samples x runs pre-integrated at once by the fast path (bounds its temporaries)
 PIECE_SAMPLE_RUNS = 1 << 18
+#: fraction of a sample interval by which a clock may fall short of a threshold and still
+#: reach it (:func:`reached`). The clocks (time into an update interval, time since the
+#: first sample) are sums of intervals: the per-sample path adds stamp differences, the fast
+#: path multiples of the block's rounded uniform interval, so they differ by rounding
+#: (1e-12 s). A clock that lands exactly on a threshold (the double interval after a
+#: rejected or missing sample) must fall the same way in both.
+DUE_TOL = 1e-6
 
 
 class FastPath:
@@ -145,11 +152,12 @@ class FastPath:
     @staticmethod
     def _samples_until(left: float, dts) -> int:
         """How many samples until an accumulated time reaches ``left`` (the per-sample
-        rule: t + dt_j >= left - dt_j / 2), at least 1, at most all of them."""
+        rule, :func:`reached`: t + dt_j >= left - dt_j / 2), at least 1, at most all of
+        them."""
         if np.ndim(dts) == 0:
-            return max(1, int(math.ceil((left - 0.5 * dts) / dts - 1e-9)))
-        key = np.cumsum(dts) + 0.5 * dts            # increasing: intervals within 40 %
-        return min(len(dts), int(np.searchsorted(key, left - 1e-12)) + 1)
+            return max(1, int(math.ceil(left / dts - 0.5 - DUE_TOL)))
+        key = np.cumsum(dts) + (0.5 + DUE_TOL) * dts    # increasing: intervals within 40 %
+        return min(len(dts), int(np.searchsorted(key, left)) + 1)
 
     def _period(self) -> float:
         return self.fine_period if self.fine else self.config.coarse_update_period
@@ -380,7 +388,7 @@ class FastPath:
         (last sample interval ``dt``), or (None, 0.0) when none is due yet: the coarse
         pass's instantaneous velocity (``H``, R scaled to the interval), the fine pass's
         mean velocity over it."""
-        if t_acc < period - 0.5 * dt:
+        if not reached(t_acc, period, dt):
             return None, 0.0
         if self.fine:
             return self._averaged_H(t_acc, cache), 1.0
@@ -576,6 +584,13 @@ def _increment(CA, U, U2) -> tuple:
     return (c0 + u0 * c1 + u1 * c4 + u2 * c7 + w0 * c2 + w1 * c5 + w2 * c8,
             c3 + u3 * c1 + u4 * c4 + u5 * c7 + w3 * c2 + w4 * c5 + w5 * c8,
             c6 + u6 * c1 + u7 * c4 + u8 * c7 + w6 * c2 + w7 * c5 + w8 * c8)
+
+
+def reached(clock: float, target: float, dt: float) -> bool:
+    """Whether a clock that has just advanced by a sample interval ``dt`` has reached
+    ``target``: the sample whose end is nearest the target reaches it
+    (``clock >= target - dt / 2``), a tie (to ``DUE_TOL`` of ``dt``) counted as reached."""
+    return clock >= target - (0.5 + DUE_TOL) * dt
 
 
 def uniform_interval(dts: np.ndarray) -> float | None:

@@ -23,7 +23,7 @@ from sins_align.core.rotation import so3_exp
 from sins_align.core.specs import DEG, limit_covariance
 from sins_align.estimators.quasi_static.backtrack import Backtrack, SampleBuffer
 from sins_align.estimators.quasi_static.config import AlignConfig
-from sins_align.estimators.quasi_static.fast_path import FastPath
+from sins_align.estimators.quasi_static.fast_path import FastPath, reached
 from sins_align.estimators.quasi_static.schedule import SHARED_SCHEDULES, GainScheduleCache
 
 #: s: with heading unobservable, the gyro bias is attitude noise reaching its size in this time
@@ -175,7 +175,7 @@ class AlignmentFilter(FastPath, Backtrack):
 
     def _backtrack_due(self, dt: float) -> bool:
         return (self._buf is not None and not self.backtracked
-                and self.t_int >= self.config.backtrack_time - 0.5 * dt)
+                and reached(self.t_int, self.config.backtrack_time, dt))
 
     def run(self, dt, w: np.ndarray, f: np.ndarray):
         """Many samples through :meth:`step` one by one (the reference path).
@@ -280,14 +280,14 @@ class AlignmentFilter(FastPath, Backtrack):
             # every coarse_update_period; R scaled so the noise density does not depend on it
             period = self.config.coarse_update_period
             self.t_acc += dt
-            if self.t_acc >= period - 0.5 * dt:
+            if reached(self.t_acc, period, dt):
                 H = measurement_matrix(self.config.model, self.v)
                 self._correct(self.v, H, scale=0.01 / self.t_acc)
                 self.t_acc = 0.0
             return
         self.v_sum += self.v * dt
         self.t_acc += dt
-        if self.t_acc >= self.fine_period - 0.5 * dt:
+        if reached(self.t_acc, self.fine_period, dt):
             H = measurement_matrix(self.config.model, self.v)
             Ha = averaged_measurement_matrix(H, F, self.t_acc)
             self._correct(self.v_sum / self.t_acc, Ha)
