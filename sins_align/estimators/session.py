@@ -112,13 +112,8 @@ class AlignmentSession:
             return 0
         if self._restart_request:
             self.restart(self._restart_request)
-        finite = np.isfinite(t)
-        tl = self.estimator.t_last
-        bound = np.maximum.accumulate(np.concatenate((
-            [-np.inf if tl is None else tl], np.where(finite[:-1], t[:-1], -np.inf))))
-        back = np.flatnonzero(finite & (t < bound - self.estimator.config.max_gap))
         accepted, k = 0, 0
-        for b in back.tolist() + [n]:
+        for b in self._alone(t) + [n]:
             if b > k:
                 self._back_run = 0
                 r = self._rejections
@@ -128,6 +123,16 @@ class AlignmentSession:
                 accepted += self.feed(float(t[b]), w[b], f[b])
             k = b + 1
         return accepted
+
+    def _alone(self, t: np.ndarray) -> list[int]:
+        """Indices of the samples of a block that could be far behind the last accepted
+        stamp (below the largest stamp seen before them minus ``max_gap``): the block
+        paths hand those to :meth:`feed` alone."""
+        finite = np.isfinite(t)
+        tl = self.estimator.t_last
+        bound = np.maximum.accumulate(np.concatenate((
+            [-np.inf if tl is None else tl], np.where(finite[:-1], t[:-1], -np.inf))))
+        return np.flatnonzero(finite & (t < bound - self.estimator.config.max_gap)).tolist()
 
     def feed_block_states(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, want=None,
                           views=None):
@@ -150,13 +155,8 @@ class AlignmentSession:
         if self._restart_request:
             self.restart(self._restart_request)
             self.block_restarts.append((-1, self.resets, self.last_reset_reason))
-        finite = np.isfinite(t)
-        tl = est.t_last
-        bound = np.maximum.accumulate(np.concatenate((
-            [-np.inf if tl is None else tl], np.where(finite[:-1], t[:-1], -np.inf))))
-        back = np.flatnonzero(finite & (t < bound - est.config.max_gap))
         k = 0
-        for b in back.tolist() + [n]:
+        for b in self._alone(t) + [n]:
             if b > k:
                 self._back_run = 0
                 st = est.update_states(t[k:b], w[k:b], f[k:b],

@@ -510,6 +510,13 @@ class InvariantEKF:
         if self.i_nhl is not None:
             self.nhc_lever = self.nhc_lever - dx[:, self.i_nhl]
 
+    def _body_rate(self):
+        """(a, w_nb), each (K, 3), body axes: the navigation frame's rate (Earth and
+        transport) and the body's rate with respect to it, from the last corrected rate."""
+        w_ie, w_en = _w_in(self.v, self.lat, self.h)
+        a = np.einsum("kji,kj->ki", self.C, w_ie + w_en)
+        return a, self.w_last - a
+
     def velocity_model(self):
         """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state."""
         C, lever = self.C, self.lever
@@ -519,9 +526,7 @@ class InvariantEKF:
             H = np.zeros((K, 3, self.n))
             H[:, :, INU] = -C
             return self.v.copy(), H
-        w_ie, w_en = _w_in(self.v, self.lat, self.h)
-        a = np.einsum("kji,kj->ki", C, w_ie + w_en)
-        w_nb = self.w_last - a
+        a, w_nb = self._body_rate()
         u = _cross(w_nb, lever)
         z_hat = self.v + np.einsum("kij,kj->ki", C, u)
         Hb = np.zeros((K, 3, self.n))
@@ -566,10 +571,15 @@ class InvariantEKF:
         H[:, 0, IPHI] = -_skew(vb)[:, axis, :]
         H[:, 0, INU] = -_I3[axis]
         lever = self.nhc_lever
-        if self.i_nhl is not None or lever.any():
-            w_ie, w_en = _w_in(self.v, self.lat, self.h)
-            a = np.einsum("kji,kj->ki", C, w_ie + w_en)
-            w_nb = self.w_last - a
+        at_lever = self.i_nhl is not None or lever.any()
+        R = np.array([[sigma * sigma]])
+        if at_lever or slip > 0.0:
+            a, w_nb = self._body_rate()
+        if slip > 0.0:                      # the IMU's own lateral acceleration and speed
+            a_lat = np.abs(_cross(w_nb, vb)[:, axis])
+            u = np.linalg.norm(vb, axis=1)
+            R = (sigma * sigma + slip_updates * (slip * a_lat * u) ** 2)[:, None, None]
+        if at_lever:
             vb = vb + _cross(w_nb, lever)
             H[:, 0, IPHI] -= (_skew(lever) @ _skew(a))[:, axis, :]
             H[:, 0, IBG] = -_skew(lever)[:, axis, :]
@@ -577,14 +587,6 @@ class InvariantEKF:
                 H[:, 0, self.i_nhl] = -_skew(w_nb)[:, axis, :]
             if self.i_sf is not None:
                 H[:, 0, self.i_sf] = (-_skew(lever) * self.w_last[:, None, :])[:, axis, :]
-        R = np.array([[sigma * sigma]])
-        if slip > 0.0:
-            w_ie, w_en = _w_in(self.v, self.lat, self.h)
-            w_nb = self.w_last - np.einsum("kji,kj->ki", C, w_ie + w_en)
-            vc = np.einsum("kji,kj->ki", C, self.v)
-            a_lat = np.abs(_cross(w_nb, vc)[:, axis])
-            u = np.linalg.norm(vc, axis=1)
-            R = (sigma * sigma + slip_updates * (slip * a_lat * u) ** 2)[:, None, None]
         return self._apply(-vb[:, axis:axis + 1], H, R, nis_limit)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
