@@ -14,3 +14,15 @@ def cli(mod, args, capsys):
 def listing(d: Path) -> set[str]:
     """Every entry under ``d`` (hidden ones included), relative to it."""
     return {str(p.relative_to(d)) for p in d.rglob("*")}
+
+
+def simulated_bags(tmp_path: Path, seconds: int = 40):
+    """``simulate``'s static 100 Hz bags of ``seconds`` s (latitude 34) with zstd chunks and
+    uncompressed: yields (compression, bag directory)."""
+    from sins_align.tools import simulate
+
+    for comp in ("zstd", "none"):
+        bag = tmp_path / f"sim_{comp}"
+        assert simulate.main(["--latitude", "34", "--duration", str(seconds), "--rate", "100",
+                              "--compression", comp, str(bag)]) == 0
+        yield comp, bag

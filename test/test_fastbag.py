@@ -20,6 +20,7 @@ from sins_align.io.fastbag import FastBag, Unusual, check_definition, open_fast
 from sins_align.estimators.quasi_static.aligner import AlignConfig
 from sins_align.tools import replay
 
+from cli_helpers import simulated_bags
 from test_mcap_fast import IMU, QUAT, assert_replay_equals_rosbags, imu_raw, truth_raw
 
 NS = 10_000_000
@@ -167,12 +168,7 @@ def test_corrupt_or_unusual_sqlite3_bags(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------ mcap
 def test_mcap_bags_of_simulate_and_of_rosbags_writer(tmp_path):
-    from sins_align.tools import simulate
-
-    for comp in ("zstd", "none"):
-        bag = tmp_path / f"sim_{comp}"
-        assert simulate.main(["--latitude", "34", "--duration", "40", "--rate", "100",
-                              "--compression", comp, str(bag)]) == 0
+    for comp, bag in simulated_bags(tmp_path):
         for topic in ("/imu/data_raw", "/imu_sim/truth"):
             tb, got = fast_read(bag, topic)
             assert tb.fallback_reason is None and tb.fast_messages == 4000

@@ -23,6 +23,8 @@ from sins_align.io.bagio import CliError, McapTopicReader, MessageBlock, TopicBl
     read_messages, typestore
 from sins_align.io.cdr import decode_imu_array, decode_imu_batch
 
+from cli_helpers import simulated_bags
+
 IMU = "sensor_msgs/msg/Imu"
 QUAT = "geometry_msgs/msg/QuaternionStamped"
 MAGIC = b"\x89MCAP0\r\n"
@@ -245,12 +247,7 @@ def test_directory_bag_with_two_files(tmp_path):
 
 
 def test_bags_written_by_rosbags_and_simulate(tmp_path):
-    from sins_align.tools import simulate
-
-    for comp in ("zstd", "none"):
-        bag = tmp_path / f"sim_{comp}"
-        assert simulate.main(["--latitude", "34", "--duration", "40", "--rate", "100",
-                              "--compression", comp, str(bag)]) == 0
+    for comp, bag in simulated_bags(tmp_path):
         for topic in ("/imu/data_raw", "/imu_sim/truth"):
             tb = compare(bag, topic)
             assert tb.fallback_reason is None and tb.fast_messages == 4000
