@@ -570,3 +570,53 @@ def test_one_sample_checks_equal_the_block_checks():
     assert used_a == used_b == 5
     assert a.rejected == b.rejected and sum(a.rejected.values()) == 7, a.rejected
     assert a.samples_used == b.samples_used
+
+
+def _numpy_accepts(z, R):
+    """The covariance rule with numpy (the reference of add_velocity's scalar checks)."""
+    ok = np.isfinite(z)
+    Rk = R[np.ix_(ok, ok)]
+    if not np.all(np.isfinite(Rk)) or np.any(np.diag(Rk) <= 0) or not np.allclose(Rk, Rk.T):
+        return False
+    try:
+        np.linalg.cholesky(Rk)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def test_velocity_covariance_checks_equal_numpys():
+    """add_velocity's covariance checks (scalar, for speed) accept exactly what numpy's
+    finiteness, diagonal, allclose-symmetry and Cholesky checks accept, on every subset of
+    measured components, for valid, indefinite, asymmetric and non-finite matrices."""
+    rng = np.random.default_rng(5)
+    cases = []
+    for _ in range(400):
+        A = rng.normal(size=(3, 3))
+        kind = rng.integers(6)
+        if kind == 0:
+            R = A @ A.T + 1e-3 * np.eye(3)                      # valid
+        elif kind == 1:
+            R = A + A.T                                          # symmetric, often indefinite
+        elif kind == 2:
+            R = A @ A.T + 1e-3 * np.eye(3)
+            R[0, 1] += rng.choice([1e-9, 1e-3]) * R[0, 1]        # asymmetric, within or not
+        elif kind == 3:
+            R = A @ A.T
+            R[rng.integers(3), rng.integers(3)] = rng.choice([np.nan, np.inf])
+        elif kind == 4:
+            v = rng.normal(size=3)
+            R = np.outer(v, v) + rng.choice([0.0, 1e-12, 1e-6]) * np.eye(3)   # near singular
+        else:
+            R = np.diag(rng.choice([-1.0, 0.0, 0.01, 1.0], size=3))
+        z = np.where(rng.random(3) < 0.25, np.nan, 1.0)
+        if np.isnan(z).all():
+            z[0] = 1.0
+        cases.append((z, R))
+    al = MotionAligner(_cfg())
+    accepted = 0
+    for i, (z, R) in enumerate(cases):
+        want = _numpy_accepts(z, R)
+        assert al.add_velocity(1.0 + 0.01 * i, z, cov=R) == want, (z, R)
+        accepted += want
+    assert 50 < accepted < 350                 # both outcomes well represented

@@ -93,6 +93,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         walk_g = s.gyro_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.gyro_bias
         walk_a = s.accel_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.accel_bias
         self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a)
+        # (velocity_noise > 0 is checked by the config: valid whatever is measured)
+        self._default_R = np.eye(3) * config.velocity_noise ** 2
         self.rejected: Counter = Counter()
         self.events: Counter = Counter()
         self._listeners: list[Callable[[AlignmentEvent], None]] = []
@@ -151,11 +153,18 @@ class MotionAligner(EventSource, AttitudeReadout):
         (:attr:`jitter_covariance`). Before the start: pi^2 on each axis (nothing known)."""
         if self.ekf is None:
             return np.eye(3) * math.pi ** 2
-        covs = self.ekf.covariance_enu
+        ekf = self.ekf
+        J = self._jitter.covariance
+        if ekf.K == 1:
+            Ce = ekf.C[0]
+            cov = Ce @ ekf.P[0, IPHI, IPHI] @ Ce.T
+            if J.any():
+                C = self.dcm
+                cov = cov + C @ J @ C.T
+            return cov
+        covs = ekf.covariance_enu
         C = self.dcm
-        jitter = C @ self._jitter.covariance @ C.T
-        if self.ekf.K == 1:
-            return covs[0] + jitter
+        jitter = C @ J @ C.T
         # the Gaussian sum's covariance about the published (best) hypothesis
         w = np.exp(self._logw)
         Cs = np.array([self.ekf.corrected(i)[0] for i in range(self.ekf.K)])
@@ -437,24 +446,19 @@ class MotionAligner(EventSource, AttitudeReadout):
         if z.shape != (3,):
             self._reject("measurement_invalid", None)
             return False
+        zl = z.tolist()
+        ok = [math.isfinite(x) for x in zl]
         if cov is None:
-            R = np.eye(3) * self.config.velocity_noise ** 2
+            R = self._default_R
         else:
             R = np.asarray(cov, dtype=float)
             if R.shape != (3, 3):
                 self._reject("measurement_invalid", None)
                 return False
-        ok = np.isfinite(z)
-        if not ok.any():
+        if not any(ok):
             self._reject("nonfinite", _fl(stamp))
             return False
-        Rk = R[np.ix_(ok, ok)]
-        if not np.all(np.isfinite(Rk)) or np.any(np.diag(Rk) <= 0) or not np.allclose(Rk, Rk.T):
-            self._reject("measurement_invalid", _fl(stamp))
-            return False
-        try:
-            np.linalg.cholesky(Rk)
-        except np.linalg.LinAlgError:
+        if cov is not None and not _valid_covariance(R.tolist(), ok):
             self._reject("measurement_invalid", _fl(stamp))
             return False
         return self._add("velocity", stamp, (z, R))
@@ -570,7 +574,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         n = len(t)
         if n == 0:
             return
-        dts = np.diff(np.concatenate(([prev], t)))
+        dts = (np.array([float(t[0]) - prev]) if n == 1
+               else np.diff(np.concatenate(([prev], t))))
         # the runs: each ends at the first sample reaching an event (or at the last one)
         stamps = [p[0] for p in self._pending]
         nhc = self._next_nhc
@@ -614,16 +619,14 @@ class MotionAligner(EventSource, AttitudeReadout):
             # ENU by each filter's attitude
             T = self.config.velocity_averaging
             hf = self._vjitter.at(t_now, T) if T > 0.0 else None
-            f_now = ekf.f_last[self._best]
             if hf is not None:
-                jit, f_lf = hf
-                z = z + np.einsum("kij,j->ki", ekf.C, jit)
-                b = self._best
-                f_now = (f_lf - ekf.ba[b]) / (1.0 + ekf.sa[b])
+                z = z + ekf.C @ hf[0]                   # (K, 3)
             # the measurement is of the instant ts, the state of t_now (>= ts, within a
             # sample): move it by the (low-frequency) acceleration over the difference
             if t_now > ts:
                 b = self._best
+                f_now = (ekf.f_last[b] if hf is None
+                         else (hf[1] - ekf.ba[b]) / (1.0 + ekf.sa[b]))
                 acc = ekf.C[b] @ f_now
                 acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
                 z = z + (t_now - ts) * acc
@@ -776,6 +779,32 @@ def _fl(x):
     except (TypeError, ValueError):
         return None
     return x if math.isfinite(x) else None
+
+
+def _valid_covariance(R: list, ok: list) -> bool:
+    """Whether the rows and columns ``ok`` of the 3 x 3 ``R`` (nested lists) are a valid
+    covariance: finite, a positive diagonal, symmetric (to numpy.allclose's tolerances) and
+    positive definite (a Cholesky factorisation of the lower triangle, as LAPACK's)."""
+    idx = [i for i in range(3) if ok[i]]
+    for i in idx:
+        for j in idx:
+            a, b = R[i][j], R[j][i]
+            if not math.isfinite(a) or abs(a - b) > 1e-8 + 1e-5 * abs(b):
+                return False
+        if not R[i][i] > 0.0:
+            return False
+    L: list = []
+    for r, i in enumerate(idx):
+        row = []
+        for c in range(r):
+            j = idx[c]
+            row.append((R[i][j] - sum(row[k] * L[c][k] for k in range(c))) / L[c][c])
+        d = R[i][i] - sum(x * x for x in row)
+        if not d > 0.0:
+            return False
+        row.append(math.sqrt(d))
+        L.append(row)
+    return True
 
 
 def _level_dcm(up_body: np.ndarray, yaw: float) -> np.ndarray:

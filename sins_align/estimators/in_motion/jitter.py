@@ -66,6 +66,11 @@ class JitterMonitor:
         """Accepted samples: stamps t (n,) s, increasing; rates w (n, 3) rad/s."""
         t = np.asarray(t, dtype=float).reshape(-1)
         w = np.asarray(w, dtype=float).reshape(-1, 3)
+        if len(t) == 1 and self._t0 is not None and t[0] < self._t0 + WINDOW:
+            # (a live stream: one sample inside the window; what the loop below does)
+            self._t.append(t)
+            self._w.append(w)
+            return
         i = 0
         while i < len(t):
             if self._t0 is None:
