@@ -143,7 +143,8 @@ class MotionAligner(EventSource, AttitudeReadout):
 
     @property
     def dcm(self) -> np.ndarray:
-        return np.eye(3) if self.ekf is None else self.ekf.corrected(self._best)[0]
+        return (np.eye(3) if self.ekf is None
+                else self.ekf.corrected_dcms()[self._best].copy())
 
     @property
     def covariance(self) -> np.ndarray:
@@ -159,15 +160,15 @@ class MotionAligner(EventSource, AttitudeReadout):
             Ce = ekf.C[0]
             cov = Ce @ ekf.P[0, IPHI, IPHI] @ Ce.T
             if J.any():
-                C = self.dcm
+                C = ekf.corrected_dcms()[0]
                 cov = cov + C @ J @ C.T
             return cov
         covs = ekf.covariance_enu
-        C = self.dcm
+        Cs = ekf.corrected_dcms()
+        C = Cs[self._best]
         jitter = C @ J @ C.T
         # the Gaussian sum's covariance about the published (best) hypothesis
         w = np.exp(self._logw)
-        Cs = np.array([self.ekf.corrected(i)[0] for i in range(self.ekf.K)])
         d = attitude_error(Cs, Cs[self._best][None])                     # (K, 3), ENU
         return np.einsum("k,kij->ij", w, covs + d[:, :, None] * d[:, None, :]) + jitter
 

@@ -299,6 +299,13 @@ class InvariantEKF:
     def nav(self, i: int = 0) -> NavState:
         return NavState(self.C[i], self.v[i], self.lat[i], self.lon[i], self.h[i])
 
+    def corrected_dcms(self) -> np.ndarray:
+        """(K, 3, 3): every filter's attitude with the error estimate not yet fed back
+        removed (``corrected(i)[0]`` of each; with full feedback the state's own)."""
+        if self.schedule is None:
+            return self.C
+        return self.C @ so3_exp(-self.dx[:, IPHI])
+
     @property
     def covariance_enu(self) -> np.ndarray:
         """(K, 3, 3): covariance of the attitude error in ENU (C_true = exp(e x) C_hat,
