@@ -120,3 +120,26 @@ def test_heading_pole_against_body_y_axis():
         assert r.heading_from_dcm(C) / DEG == pytest.approx(60.0, abs=1e-9)
         y = C[:, 1]
         assert np.degrees(np.arctan2(y[0], y[1])) % 360 == pytest.approx(330.0, abs=1e-9)
+
+
+def test_left_jacobian_inverse_maps_a_small_error_about_a_rotation():
+    """log(exp(e x) exp(phi x)) = phi + J_l^-1(phi) e to first order, at small, medium and
+    near-pi angles (where the error normal to phi is magnified by (theta/2)/sin(theta/2))."""
+    import math
+    so3_left_jacobian_inv, so3_log, so3_exp = r.so3_left_jacobian_inv, r.so3_log, r.so3_exp
+    rng = np.random.default_rng(3)
+    phis = [np.zeros(3), np.array([0.0, 0.0, 1e-6]), rng.normal(size=3) * 0.3,
+            np.array([0.0, 0.0, 2.0]), np.array([0.1, -0.2, 3.1]) / np.linalg.norm(
+                [0.1, -0.2, 3.1]) * 3.1]
+    J = so3_left_jacobian_inv(np.array(phis))
+    assert J.shape == (len(phis), 3, 3)
+    for phi, Jk in zip(phis, J):
+        assert np.allclose(so3_left_jacobian_inv(phi), Jk)
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = 1e-6
+            num = (so3_log(so3_exp(e) @ so3_exp(phi)) - so3_log(so3_exp(-e) @ so3_exp(phi))) / 2e-6
+            assert np.allclose(num, Jk[:, k], atol=1e-6), (phi, k, num, Jk[:, k])
+    # the magnification normal to a rotation of 2 rad about z
+    gain = np.linalg.norm(J[3] @ np.array([1.0, 0.0, 0.0]))
+    assert gain == pytest.approx(1.0 / math.sin(1.0), rel=1e-9)

@@ -296,6 +296,25 @@ def attitude_error(C_true: np.ndarray, C_est: np.ndarray) -> np.ndarray:
     return so3_log(np.asarray(C_true) @ np.swapaxes(np.asarray(C_est), -1, -2))
 
 
+def so3_left_jacobian_inv(rotvec: np.ndarray) -> np.ndarray:
+    """Inverse left Jacobian of SO(3) at ``rotvec`` (..., 3), |rotvec| <= pi: (..., 3, 3).
+
+    ``log(exp(e x) exp(phi x)) = phi + J_l^-1(phi) e`` to first order in ``e``: an error
+    ``e`` about a rotation ``phi`` away becomes that much error about the origin. On the
+    plane normal to ``phi`` its gain is ``(theta / 2) / sin(theta / 2)`` (1 at 0, 1.57 at
+    pi) and it turns ``e`` by ``theta / 2``."""
+    phi = np.asarray(rotvec, dtype=float)
+    th = np.linalg.norm(phi, axis=-1)
+    S = skew(phi)
+    half = 0.5 * th
+    big = th > 1e-4
+    safe = np.where(big, th, 1.0)
+    # (1 - (theta/2) cot(theta/2)) / theta^2, its series 1/12 + theta^2/720 near 0
+    coef = np.where(big, (1.0 - half * np.cos(half) / np.where(big, np.sin(half), 1.0))
+                    / (safe * safe), 1.0 / 12.0 + th * th / 720.0)
+    return np.eye(3) - 0.5 * S + coef[..., None, None] * (S @ S)
+
+
 def wrap_angle(a: np.ndarray) -> np.ndarray:
     """Wrap an angle (rad) to [-pi, pi)."""
     return np.mod(np.asarray(a) + np.pi, 2.0 * np.pi) - np.pi

@@ -34,7 +34,8 @@ from collections.abc import Callable
 import numpy as np
 
 from sins_align.core.earth import normal_gravity
-from sins_align.core.rotation import attitude_error, dcm_from_quat, dcm_from_rpy
+from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rpy,
+                                      so3_left_jacobian_inv)
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion.config import MotionConfig
@@ -167,9 +168,13 @@ class MotionAligner(EventSource, AttitudeReadout):
         Cs = ekf.corrected_dcms()
         C = Cs[self._best]
         jitter = C @ J @ C.T
-        # the Gaussian sum's covariance about the published (best) hypothesis
+        # the Gaussian sum's covariance about the published (best) hypothesis: each
+        # hypothesis' error carried to the best one's attitude, d away (the inverse left
+        # Jacobian at d: up to 1.57 x on the level axes of one 180 deg off in heading)
         w = np.exp(self._logw)
         d = attitude_error(Cs, Cs[self._best][None])                     # (K, 3), ENU
+        J = so3_left_jacobian_inv(d)
+        covs = J @ covs @ np.swapaxes(J, -1, -2)
         return np.einsum("k,kij->ij", w, covs + d[:, :, None] * d[:, None, :]) + jitter
 
     @property
