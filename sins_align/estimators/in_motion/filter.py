@@ -87,6 +87,7 @@ the large early corrections).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -96,7 +97,7 @@ from sins_align.core.earth import OMEGA_IE, normal_gravity, radii
 from sins_align.core.rotation import skew, so3_exp, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
-                                                 advance_navigation, cross as _cross,
+                                                 advance_navigation, cross as _cross, mm as _mm,
                                                  mT as _mT, one_sample_sums, run_sums,
                                                  skew as _skew)
 
@@ -139,6 +140,28 @@ def _w_in(v, lat, h):
     return w_ie, w_en
 
 
+@functools.lru_cache(maxsize=8)
+def _transition_layout(n: int):
+    """Where :meth:`InvariantEKF._advance_one` puts the entries of a run's transition (n
+    states): (the identity with its first six rows zero, the flat positions of the core
+    blocks, which of the 36 entries of [Gb^T, Gb^T S, Gb^T (V x), Gb^T M] goes there, its
+    sign); read only."""
+    pos, src, sign = [], [], []
+    for br, bc, first, sg in ((0, 0, 0, 1.0), (0, 2, 9, -1.0), (1, 0, 18, -1.0),
+                              (1, 1, 0, 1.0), (1, 2, 27, 1.0), (1, 3, 9, -1.0)):
+        for i in range(3):
+            for j in range(3):
+                pos.append((3 * br + i) * n + 3 * bc + j)
+                src.append(first + 3 * i + j)
+                sign.append(sg)
+    base = np.eye(n)
+    base[:6] = 0.0
+    out = (base, np.array(pos), np.array(src), np.array(sign))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
 #: samples whose run sums are computed in one pass (fewer after a re-linearisation)
 _CHUNK_SAMPLES = 2048
 
@@ -153,6 +176,7 @@ class _Linearisation:
         self.ids = ekf.ids.copy()
         self.bg, self.ba = ekf.bg.copy(), ekf.ba.copy()
         self.sf, self.sa = ekf.sf.copy(), ekf.sa.copy()
+        self._lists = {}
         self.w = (gyro - ekf.bg[:, None]) / (1.0 + ekf.sf[:, None])
         self.f = (accel - ekf.ba[:, None]) / (1.0 + ekf.sa[:, None])
         lat, h = ekf.lat, ekf.h
@@ -171,6 +195,14 @@ class _Linearisation:
                                1.0 / (rm + h), 1.0 / (rn + h), np.tan(lat), 1.0 / np.cos(lat),
                                normal_gravity(lat, h), h], -1).tolist()
         ekf._earth = (lat.copy(), h.copy(), self.earth)
+
+    def lists(self, row):
+        """Row ``row``'s bg, ba, sf and sa as lists of floats (computed once)."""
+        out = self._lists.get(row)
+        if out is None:
+            out = self._lists[row] = (self.bg[row].tolist(), self.ba[row].tolist(),
+                                      self.sf[row].tolist(), self.sa[row].tolist())
+        return out
 
     def rows(self, ekf):
         """The rows of this pass's arrays of the bank's filters now (None: all, in order)."""
@@ -384,6 +416,10 @@ class InvariantEKF:
     def _advance(self, s, r, lin, gyro_end, accel_end) -> None:
         """Apply run r of the sums ``s`` (bias-corrected to first order) to every filter."""
         rows = lin.rows(self)
+        if self.K == 1:
+            self._advance_one(s, r, lin, 0 if rows is None else int(rows[0]), gyro_end,
+                              accel_end)
+            return
         if rows is None:
             def g(a):
                 return a[:, r]
@@ -446,12 +482,71 @@ class InvariantEKF:
         self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
         self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
 
+    def _advance_one(self, s, r, lin, row, gyro_end, accel_end) -> None:
+        """:meth:`_advance` of a bank of one filter (row ``row`` of the pass): the same
+        arithmetic in Python floats and 2-D arrays, without the batch axis's per-call cost
+        (the equality test compares it with a bank of identical filters)."""
+        T = float(s.T[r])
+        sums = s.packed[row, r].tolist()
+        lbg, lba, lsf, lsa = lin.lists(row)
+        extra = {}
+        if s.Sw is not None:
+            extra.update(dsf=[x - y for x, y in zip(self.sf[0].tolist(), lsf)],
+                         Sw=s.Sw[row, r].ravel().tolist(), Mw=s.Mw[row, r].ravel().tolist())
+        if s.Sa is not None:
+            extra.update(dsa=[x - y for x, y in zip(self.sa[0].tolist(), lsa)],
+                         Sa=s.Sa[row, r].ravel().tolist())
+        C1, v1, lat, lon, h, Gb, Vb = advance_navigation(
+            self.C[0].ravel().tolist(), self.v[0].tolist(), float(self.lat[0]),
+            float(self.lon[0]), float(self.h[0]), sums, T,
+            [x - y for x, y in zip(self.bg[0].tolist(), lbg)],
+            [x - y for x, y in zip(self.ba[0].tolist(), lba)], lin.earth[row], **extra)
+        # the transition's first six rows (the others are the identity's), as in _advance:
+        # the entries of Gb^T, Gb^T S, Gb^T (Vb x) and Gb^T M put in place with their signs
+        g0, g1, g2, g3, g4, g5, g6, g7, g8 = Gb
+        GbT = [g0, g3, g6, g1, g4, g7, g2, g5, g8]
+        Vx, Vy, Vz = Vb
+        blocks = np.array(GbT + _mm(GbT, sums[9:18])
+                          + _mm(GbT, [0.0, -Vz, Vy, Vz, 0.0, -Vx, -Vy, Vx, 0.0])
+                          + _mm(GbT, sums[18:27]))
+        base, pos, src, sign = _transition_layout(self.n)
+        Phi = base.copy()
+        Phi.reshape(-1)[pos] = blocks[src] * sign
+        if s.Sw is not None or s.Sa is not None:
+            G = np.array(GbT).reshape(3, 3)
+            if s.Sw is not None:
+                Phi[IPHI, self.i_sf] = -G @ s.Sw[row, r]
+                Phi[INU, self.i_sf] = G @ s.Mw[row, r]
+            if s.Sa is not None:
+                Phi[INU, self.i_sa] = -G @ s.Sa[row, r]
+        P = Phi @ self.P[0] @ Phi.T + s.Q[row, r]
+        P = P + P.T
+        P *= 0.5
+        self.P = P[None]
+        self.t_since_feedback += T
+        if self.schedule is not None:
+            self.dx = (Phi @ self.dx[0])[None]
+        nav = np.array(C1 + v1 + [lat, lon, h])        # one buffer, five arrays
+        self.C = nav[0:9].reshape(1, 3, 3)
+        self.v = nav[9:12].reshape(1, 3)
+        self.lat, self.lon, self.h = nav[12:13], nav[13:14], nav[14:15]
+        if gyro_end.ndim == 1:
+            self.w_last = np.array([[(x - y) / (1.0 + z) for x, y, z in zip(
+                gyro_end.tolist(), self.bg[0].tolist(), self.sf[0].tolist())]])
+            self.f_last = np.array([[(x - y) / (1.0 + z) for x, y, z in zip(
+                accel_end.tolist(), self.ba[0].tolist(), self.sa[0].tolist())]])
+        else:
+            self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
+            self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
+
     # ---------------------------------------------------------------- updates
     def _apply(self, y, H, R, nis_limit=None):
         """Kalman update of every filter: residuals y (K, d), models H (K, d, n), noise R
         (d, d) or (K, d, d); feeds the estimates back. Returns (NIS per degree of freedom
         before any inflation (K,), log-likelihood of y (K,): zeros for a single filter, which
         has no other to be weighed against)."""
+        if self.K == 1:
+            return self._apply_one(y[0], H[0], R if R.ndim == 2 else R[0], nis_limit)
         P = self.P
         PHT = P @ _mT(H)
         S = H @ PHT + R
@@ -485,6 +580,34 @@ class InvariantEKF:
         self.t_since_feedback = 0.0
         return nis, loglik
 
+    def _apply_one(self, y, H, R, nis_limit):
+        """:meth:`_apply` of a bank of one filter: y (d,), H (d, n), R (d, d); the same
+        arithmetic on 2-D arrays."""
+        P = self.P[0]
+        PHT = P @ H.T
+        S = H @ PHT + R
+        Sinv = np.linalg.inv(S)
+        Sy = Sinv @ y
+        nis = float(y @ Sy) / len(y)
+        if nis_limit is not None and nis > nis_limit:
+            a = nis / nis_limit
+            R = R + (a - 1.0) * S
+            Sinv = Sinv / a
+            Sy = Sy / a
+        Kg = PHT @ Sinv
+        IKH = self._eye - Kg @ H
+        P = IKH @ P @ IKH.T + Kg @ R @ Kg.T
+        self.P = (0.5 * (P + P.T))[None]
+        if self.schedule is None:
+            self._feedback_one(PHT @ Sy)
+        else:
+            dx = self.dx[0] + Kg @ (y - H @ self.dx[0])
+            u = self.schedule(self.t_since_feedback) @ dx
+            self._feedback_one(u)
+            self.dx = (dx - u)[None]
+        self.t_since_feedback = 0.0
+        return np.array([nis]), np.zeros(1)
+
     def corrected(self, i: int):
         """Filter i's state with the error estimate not yet fed back removed: (C, v, bg, ba,
         lever, mount, nhc_lever). With full feedback that is the state itself."""
@@ -502,6 +625,9 @@ class InvariantEKF:
 
     def feedback(self, dx) -> None:
         """Remove estimated errors ``dx`` (K, n) from the states (full reset)."""
+        if self.K == 1:
+            self._feedback_one(dx[0])
+            return
         self.C = self.C @ so3_exp(-dx[:, IPHI])
         self.v = self.v - np.einsum("kij,kj->ki", self.C, dx[:, INU])
         self.bg = self.bg - dx[:, IBG]
@@ -516,6 +642,24 @@ class InvariantEKF:
             self.sa = self.sa - dx[:, self.i_sa]
         if self.i_nhl is not None:
             self.nhc_lever = self.nhc_lever - dx[:, self.i_nhl]
+
+    def _feedback_one(self, dx) -> None:
+        """:meth:`feedback` of a bank of one filter, dx (n,)."""
+        C = self.C[0] @ so3_exp(-dx[IPHI])
+        self.C = C[None]
+        self.v = (self.v[0] - C @ dx[INU])[None]
+        self.bg = (self.bg[0] - dx[IBG])[None]
+        self.ba = (self.ba[0] - dx[IBA])[None]
+        if self.i_lev is not None:
+            self.lever = (self.lever[0] - dx[self.i_lev])[None]
+        if self.i_mnt is not None:
+            self.mount = (self.mount[0] - dx[self.i_mnt])[None]
+        if self.i_sf is not None:
+            self.sf = (self.sf[0] - dx[self.i_sf])[None]
+        if self.i_sa is not None:
+            self.sa = (self.sa[0] - dx[self.i_sa])[None]
+        if self.i_nhl is not None:
+            self.nhc_lever = (self.nhc_lever[0] - dx[self.i_nhl])[None]
 
     def _body_rate(self):
         """(a, w_nb), each (K, 3), body axes: the navigation frame's rate (Earth and

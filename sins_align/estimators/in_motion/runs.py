@@ -27,7 +27,7 @@ from sins_align.core.preint import prefix_rotations
 from sins_align.core.earth import GRAVITY_PER_METRE
 from sins_align.core.rotation import quat_from_rotvec, so3_exp_entries
 
-__all__ = ["RunSums", "run_sums", "one_sample_sums", "advance_navigation",
+__all__ = ["RunSums", "run_sums", "one_sample_sums", "advance_navigation", "mm",
            "RELINEARIZE_ROTATION", "RELINEARIZE_VELOCITY"]
 
 #: largest rotation, rad, that a change of the gyro biases (or scale factors) since the
@@ -275,6 +275,10 @@ def _mm(a, b):
             a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
             a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7,
             a6 * b2 + a7 * b5 + a8 * b8]
+
+
+#: the product of two row-major 3x3 lists (9 floats each), a list of 9 floats
+mm = _mm
 
 
 def _mv(a, x, y, z):
