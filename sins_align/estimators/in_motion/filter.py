@@ -94,7 +94,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sins_align.core.earth import OMEGA_IE, normal_gravity, radii
-from sins_align.core.rotation import skew, so3_exp, so3_log
+from sins_align.core.rotation import skew, so3_exp, so3_exp_entries, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
                                                  advance_navigation, cross as _cross, mm as _mm,
@@ -186,15 +186,17 @@ class _Linearisation:
         #: they were computed (that moves the Earth rate by 1e-10 rad/s and the radii by
         #: 2e-6 relative; gravity follows the height in advance_navigation)
         cached = ekf._earth
-        if (cached is not None and cached[0].shape == lat.shape
-                and np.abs(cached[0] - lat).max() < 1e-6 and np.abs(cached[1] - h).max() < 10.0):
+        lat_l, h_l = lat.tolist(), h.tolist()       # (compared in floats: a few filters)
+        if (cached is not None and len(cached[0]) == len(lat_l)
+                and all(abs(a - b) < 1e-6 for a, b in zip(cached[0], lat_l))
+                and all(abs(a - b) < 10.0 for a, b in zip(cached[1], h_l))):
             self.earth = cached[2]
             return
         rm, rn = radii(lat)
         self.earth = np.stack([OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat),
                                1.0 / (rm + h), 1.0 / (rn + h), np.tan(lat), 1.0 / np.cos(lat),
                                normal_gravity(lat, h), h], -1).tolist()
-        ekf._earth = (lat.copy(), h.copy(), self.earth)
+        ekf._earth = (lat_l, h_l, self.earth)
 
     def lists(self, row):
         """Row ``row``'s bg, ba, sf and sa as lists of floats (computed once)."""
@@ -218,6 +220,12 @@ class _Linearisation:
         """Have the biases moved so far since this point that run r must be recomputed?"""
         rows = self.rows(ekf)
         T = float(s.T[r])
+        if ekf.K == 1 and ekf.i_sf is None and ekf.i_sa is None:
+            # one filter: the same test in floats
+            lbg, lba, _, _ = self.lists(0 if rows is None else int(rows[0]))
+            rot = max(abs(a - b) for a, b in zip(ekf.bg[0].tolist(), lbg))
+            vel = max(abs(a - b) for a, b in zip(ekf.ba[0].tolist(), lba))
+            return rot * T > RELINEARIZE_ROTATION or vel * T > RELINEARIZE_VELOCITY
         rot = np.abs(ekf.bg - self.take(self.bg, rows)).max()
         vel = np.abs(ekf.ba - self.take(self.ba, rows)).max()
         if ekf.i_sf is not None:
@@ -374,9 +382,9 @@ class InvariantEKF:
         if not ends or ends[-1] != m or any(b <= a for a, b in zip([0] + ends, ends)):
             raise ValueError(f"ends must increase from above 0 to {m}")
         # pieces of at most MAX_RUN s; owner[p]: the run a piece ends, or -1
-        tt = np.cumsum(dt)
-        pieces, owner = [], []
-        k = 0
+        tt = np.cumsum(dt) if m > 1 else None
+        pieces, owner = ([1], [0]) if m == 1 else ([], [])     # (one sample: one piece)
+        k = m if m == 1 else 0
         for r, e in enumerate(ends):
             while k < e:
                 p = k + max(1, int(np.searchsorted(tt[k:e], tt[k] - dt[k] + MAX_RUN, "right")))
@@ -586,7 +594,7 @@ class InvariantEKF:
         P = self.P[0]
         PHT = P @ H.T
         S = H @ PHT + R
-        Sinv = np.linalg.inv(S)
+        Sinv = 1.0 / S if len(y) == 1 else np.linalg.inv(S)     # (1 x 1: the same division)
         Sy = Sinv @ y
         nis = float(y @ Sy) / len(y)
         if nis_limit is not None and nis > nis_limit:
@@ -612,6 +620,9 @@ class InvariantEKF:
         """Filter i's state with the error estimate not yet fed back removed: (C, v, bg, ba,
         lever, mount, nhc_lever). With full feedback that is the state itself."""
         dx = self.dx[i]
+        if not dx.any():           # (full reset: nothing carried; the same values, copied)
+            return (self.C[i].copy(), self.v[i].copy(), self.bg[i].copy(), self.ba[i].copy(),
+                    self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy())
         C = self.C[i] @ so3_exp(-dx[IPHI])
         out = [C, self.v[i] - C @ dx[INU], self.bg[i] - dx[IBG], self.ba[i] - dx[IBA],
                self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy()]
@@ -644,12 +655,21 @@ class InvariantEKF:
             self.nhc_lever = self.nhc_lever - dx[:, self.i_nhl]
 
     def _feedback_one(self, dx) -> None:
-        """:meth:`feedback` of a bank of one filter, dx (n,)."""
-        C = self.C[0] @ so3_exp(-dx[IPHI])
-        self.C = C[None]
-        self.v = (self.v[0] - C @ dx[INU])[None]
-        self.bg = (self.bg[0] - dx[IBG])[None]
-        self.ba = (self.ba[0] - dx[IBA])[None]
+        """:meth:`feedback` of a bank of one filter, dx (n,): the same arithmetic in floats
+        (the attitude, velocity and biases in one new buffer)."""
+        d = dx.tolist()
+        C = _mm(self.C[0].ravel().tolist(), list(so3_exp_entries(-d[0], -d[1], -d[2])))
+        n0, n1, n2 = d[3:6]
+        v0, v1, v2 = self.v[0].tolist()
+        b = self.bg[0].tolist() + self.ba[0].tolist()
+        buf = np.array(C + [v0 - (C[0] * n0 + C[1] * n1 + C[2] * n2),
+                            v1 - (C[3] * n0 + C[4] * n1 + C[5] * n2),
+                            v2 - (C[6] * n0 + C[7] * n1 + C[8] * n2)]
+                       + [x - y for x, y in zip(b, d[6:12])])
+        self.C = buf[0:9].reshape(1, 3, 3)
+        self.v = buf[9:12].reshape(1, 3)
+        self.bg = buf[12:15].reshape(1, 3)
+        self.ba = buf[15:18].reshape(1, 3)
         if self.i_lev is not None:
             self.lever = (self.lever[0] - dx[self.i_lev])[None]
         if self.i_mnt is not None:

@@ -232,9 +232,11 @@ def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> Run
     cost of some fifty numpy calls on one-sample arrays. dt float; w, f (K, 3)."""
     dt = float(dt)
     K = len(w)
-    packed, Swl, Mwl, Sal = [], [], [], []
+    packed, Swl, Mwl, Sal, w_max, f_max = [], [], [], [], [], []
     for (wx, wy, wz), (fx, fy, fz) in zip(np.asarray(w, float).tolist(),
                                          np.asarray(f, float).tolist()):
+        w_max += (wx, wy, wz)
+        f_max += (fx, fy, fz)
         h = so3_exp_entries(0.5 * wx * dt, 0.5 * wy * dt, 0.5 * wz * dt)
         Gm = so3_exp_entries(wx * dt, wy * dt, wz * dt)
         S = [x * dt for x in h]
@@ -256,12 +258,14 @@ def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> Run
     def arr(rows, shape):
         return np.array(rows).reshape((K, 1) + shape)
 
-    Q = np.broadcast_to(white_noise_rate(noise, n) * dt, (K, 1, n, n))
+    Q = (white_noise_rate(noise, n) * dt)[None, None]
+    if K > 1:
+        Q = np.broadcast_to(Q, (K, 1, n, n))
     return RunSums(np.array([dt]), arr(packed, (36,)), Q,
                    arr(Swl, (3, 3)) if i_sf is not None else None,
                    arr(Mwl, (3, 3)) if i_sf is not None else None,
                    arr(Sal, (3, 3)) if i_sa is not None else None,
-                   float(np.abs(w).max()), float(np.abs(f).max()))
+                   max(map(abs, w_max)), max(map(abs, f_max)))
 
 
 # ------------------------------------------------------------------ one filter, one run
