@@ -113,3 +113,25 @@ def test_bank_reduced_to_one_filter_within_a_pass_equals_that_filter_alone():
     # bank path: 5e-11 relative on the velocity after these 15 updates, as before the single
     # path existed); a wrong row or sign would show at 1e-3 and more
     _assert_same(one, bank, 0, rtol=1e-9)
+
+
+@pytest.mark.parametrize("extra", [(), ("gyro_scale", "accel_scale", "lever")])
+def test_one_sample_steps_equal_the_pass_path(extra):
+    """A pass of one sample of one filter takes a shortcut (no pass object, floats): the
+    same numbers as the pass path (per-filter samples (1, 1, 3) take it) and as a bank of two
+    identical filters, sample by sample with updates between."""
+    lever = (0.4, -0.2, 0.9) if extra else (0, 0, 0)
+    a, b, c = (_filter(K, extra, lever, (0, 0, 0), False) for K in (1, 1, 2))
+    dt, gyro, accel = _samples(120, 8)
+    rng = np.random.default_rng(9)
+    for k in range(120):
+        a.propagate(dt[k:k + 1], gyro[k:k + 1], accel[k:k + 1])
+        b.propagate(dt[k:k + 1], gyro[None, k:k + 1], accel[None, k:k + 1])
+        c.propagate(dt[k:k + 1], gyro[k:k + 1], accel[k:k + 1])
+        if k % 10 == 9:
+            z = a.v[0] + rng.normal(0, 0.3, 3)
+            for e in (a, b, c):
+                e.update_velocity(z, np.eye(3) * 0.01)
+    _assert_same(a, b, 0, rtol=1e-14)
+    _assert_same(a, c, 1)
+    assert np.abs(a.bg[0]).max() > 1e-5

@@ -98,6 +98,7 @@ from sins_align.core.rotation import skew, so3_exp, so3_exp_entries, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
                                                  advance_navigation, cross as _cross, mm as _mm,
+                                                 one_sample_entries, white_noise_rate,
                                                  mT as _mT, one_sample_sums, run_sums,
                                                  skew as _skew)
 
@@ -166,6 +167,27 @@ def _transition_layout(n: int):
 _CHUNK_SAMPLES = 2048
 
 
+def _earth(ekf):
+    """Per filter of the bank: (w_ie north, w_ie up, 1 / (R_M + h), 1 / (R_N + h), tan lat,
+    1 / cos lat, gravity, h) (what runs.advance_navigation reads); kept by the bank while
+    every filter stays within 1e-6 rad of latitude and 10 m of height of where they were
+    computed (that moves the Earth rate by 1e-10 rad/s and the radii by 2e-6 relative;
+    gravity follows the height in advance_navigation)."""
+    lat, h = ekf.lat, ekf.h
+    cached = ekf._earth
+    lat_l, h_l = lat.tolist(), h.tolist()       # (compared in floats: a few filters)
+    if (cached is not None and len(cached[0]) == len(lat_l)
+            and all(abs(a - b) < 1e-6 for a, b in zip(cached[0], lat_l))
+            and all(abs(a - b) < 10.0 for a, b in zip(cached[1], h_l))):
+        return cached[2]
+    rm, rn = radii(lat)
+    earth = np.stack([OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat),
+                      1.0 / (rm + h), 1.0 / (rn + h), np.tan(lat), 1.0 / np.cos(lat),
+                      normal_gravity(lat, h), h], -1).tolist()
+    ekf._earth = (lat_l, h_l, earth)
+    return earth
+
+
 class _Linearisation:
     """The point the run sums of one pass are computed at: each filter's biases and scale
     factors, the corrected samples, and the Earth's quantities at each filter's position
@@ -179,24 +201,7 @@ class _Linearisation:
         self._lists = {}
         self.w = (gyro - ekf.bg[:, None]) / (1.0 + ekf.sf[:, None])
         self.f = (accel - ekf.ba[:, None]) / (1.0 + ekf.sa[:, None])
-        lat, h = ekf.lat, ekf.h
-        #: per filter: (w_ie north, w_ie up, 1 / (R_M + h), 1 / (R_N + h), tan lat,
-        #: 1 / cos lat, gravity, h) (what runs.advance_navigation reads); kept by the bank
-        #: while every filter stays within 1e-6 rad of latitude and 10 m of height of where
-        #: they were computed (that moves the Earth rate by 1e-10 rad/s and the radii by
-        #: 2e-6 relative; gravity follows the height in advance_navigation)
-        cached = ekf._earth
-        lat_l, h_l = lat.tolist(), h.tolist()       # (compared in floats: a few filters)
-        if (cached is not None and len(cached[0]) == len(lat_l)
-                and all(abs(a - b) < 1e-6 for a, b in zip(cached[0], lat_l))
-                and all(abs(a - b) < 10.0 for a, b in zip(cached[1], h_l))):
-            self.earth = cached[2]
-            return
-        rm, rn = radii(lat)
-        self.earth = np.stack([OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat),
-                               1.0 / (rm + h), 1.0 / (rn + h), np.tan(lat), 1.0 / np.cos(lat),
-                               normal_gravity(lat, h), h], -1).tolist()
-        ekf._earth = (lat_l, h_l, self.earth)
+        self.earth = _earth(ekf)
 
     def lists(self, row):
         """Row ``row``'s bg, ba, sf and sa as lists of floats (computed once)."""
@@ -381,6 +386,10 @@ class InvariantEKF:
         ends = [int(e) for e in ends]
         if not ends or ends[-1] != m or any(b <= a for a, b in zip([0] + ends, ends)):
             raise ValueError(f"ends must increase from above 0 to {m}")
+        if m == 1 and self.K == 1 and gyro.ndim == 2:
+            self._step_one(float(dt[0]), gyro[0], accel[0])      # (the same, in floats)
+            yield 0
+            return
         # pieces of at most MAX_RUN s; owner[p]: the run a piece ends, or -1
         tt = np.cumsum(dt) if m > 1 else None
         pieces, owner = ([1], [0]) if m == 1 else ([], [])     # (one sample: one piece)
@@ -494,8 +503,6 @@ class InvariantEKF:
         """:meth:`_advance` of a bank of one filter (row ``row`` of the pass): the same
         arithmetic in Python floats and 2-D arrays, without the batch axis's per-call cost
         (the equality test compares it with a bank of identical filters)."""
-        T = float(s.T[r])
-        sums = s.packed[row, r].tolist()
         lbg, lba, lsf, lsa = lin.lists(row)
         extra = {}
         if s.Sw is not None:
@@ -504,11 +511,40 @@ class InvariantEKF:
         if s.Sa is not None:
             extra.update(dsa=[x - y for x, y in zip(self.sa[0].tolist(), lsa)],
                          Sa=s.Sa[row, r].ravel().tolist())
+        self._advance_floats(float(s.T[r]), s.packed[row, r].tolist(),
+                             [x - y for x, y in zip(self.bg[0].tolist(), lbg)],
+                             [x - y for x, y in zip(self.ba[0].tolist(), lba)], extra,
+                             s.Q[row, r], lin.earth[row], gyro_end, accel_end)
+
+    def _step_one(self, dt: float, gyro, accel) -> None:
+        """One sample of a bank of one filter (a live stream's usual pass): what
+        :meth:`propagate_runs` does with a pass of one sample (the linearisation point is
+        the state of now, so the bias differences are zero; the sums of
+        :func:`~sins_align.estimators.in_motion.runs.one_sample_entries`), in floats."""
+        bg, ba = self.bg[0].tolist(), self.ba[0].tolist()
+        sf, sa = self.sf[0].tolist(), self.sa[0].tolist()
+        w = [(x - y) / (1.0 + z) for x, y, z in zip(gyro.tolist(), bg, sf)]
+        f = [(x - y) / (1.0 + z) for x, y, z in zip(accel.tolist(), ba, sa)]
+        packed, Sw, Mw, Sa = one_sample_entries(dt, w, f, self.i_sf is not None,
+                                                self.i_sa is not None)
+        zero = [0.0, 0.0, 0.0]
+        extra = {}
+        if Sw is not None:
+            extra.update(dsf=zero, Sw=Sw, Mw=Mw)
+        if Sa is not None:
+            extra.update(dsa=zero, Sa=Sa)
+        self._advance_floats(dt, packed, zero, zero, extra, white_noise_rate(self.noise, self.n)
+                             * dt, _earth(self)[0], gyro, accel)
+
+    def _advance_floats(self, T, sums, dbg, dba, extra, Q, earth, gyro_end, accel_end):
+        """The navigation and covariance of a bank of one filter over one run: sums (36
+        floats, :class:`~sins_align.estimators.in_motion.runs.RunSums`), the bias
+        differences from the linearisation point dbg, dba and ``extra`` (the scale-factor
+        sums and differences, 9 and 3 floats) as runs.advance_navigation takes them, the
+        run's noise Q (n, n)."""
         C1, v1, lat, lon, h, Gb, Vb = advance_navigation(
             self.C[0].ravel().tolist(), self.v[0].tolist(), float(self.lat[0]),
-            float(self.lon[0]), float(self.h[0]), sums, T,
-            [x - y for x, y in zip(self.bg[0].tolist(), lbg)],
-            [x - y for x, y in zip(self.ba[0].tolist(), lba)], lin.earth[row], **extra)
+            float(self.lon[0]), float(self.h[0]), sums, T, dbg, dba, earth, **extra)
         # the transition's first six rows (the others are the identity's), as in _advance:
         # the entries of Gb^T, Gb^T S, Gb^T (Vb x) and Gb^T M put in place with their signs
         g0, g1, g2, g3, g4, g5, g6, g7, g8 = Gb
@@ -520,14 +556,14 @@ class InvariantEKF:
         base, pos, src, sign = _transition_layout(self.n)
         Phi = base.copy()
         Phi.reshape(-1)[pos] = blocks[src] * sign
-        if s.Sw is not None or s.Sa is not None:
+        if extra:
             G = np.array(GbT).reshape(3, 3)
-            if s.Sw is not None:
-                Phi[IPHI, self.i_sf] = -G @ s.Sw[row, r]
-                Phi[INU, self.i_sf] = G @ s.Mw[row, r]
-            if s.Sa is not None:
-                Phi[INU, self.i_sa] = -G @ s.Sa[row, r]
-        P = Phi @ self.P[0] @ Phi.T + s.Q[row, r]
+            if "Sw" in extra:
+                Phi[IPHI, self.i_sf] = -G @ np.reshape(extra["Sw"], (3, 3))
+                Phi[INU, self.i_sf] = G @ np.reshape(extra["Mw"], (3, 3))
+            if "Sa" in extra:
+                Phi[INU, self.i_sa] = -G @ np.reshape(extra["Sa"], (3, 3))
+        P = Phi @ self.P[0] @ Phi.T + Q
         P = P + P.T
         P *= 0.5
         self.P = P[None]
