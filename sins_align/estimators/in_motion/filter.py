@@ -87,16 +87,18 @@ the large early corrections).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from sins_align.core.earth import OMEGA_IE, normal_gravity, radii
-from sins_align.core.rotation import skew, so3_exp, so3_log
+from sins_align.core.rotation import skew, so3_exp, so3_exp_entries, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
-                                                 advance_navigation, cross as _cross,
+                                                 advance_navigation, cross as _cross, mm as _mm,
+                                                 one_sample_entries, white_noise_rate,
                                                  mT as _mT, one_sample_sums, run_sums,
                                                  skew as _skew)
 
@@ -139,8 +141,51 @@ def _w_in(v, lat, h):
     return w_ie, w_en
 
 
+@functools.lru_cache(maxsize=8)
+def _transition_layout(n: int):
+    """Where :meth:`InvariantEKF._advance_one` puts the entries of a run's transition (n
+    states): (the identity with its first six rows zero, the flat positions of the core
+    blocks, which of the 36 entries of [Gb^T, Gb^T S, Gb^T (V x), Gb^T M] goes there, its
+    sign); read only."""
+    pos, src, sign = [], [], []
+    for br, bc, first, sg in ((0, 0, 0, 1.0), (0, 2, 9, -1.0), (1, 0, 18, -1.0),
+                              (1, 1, 0, 1.0), (1, 2, 27, 1.0), (1, 3, 9, -1.0)):
+        for i in range(3):
+            for j in range(3):
+                pos.append((3 * br + i) * n + 3 * bc + j)
+                src.append(first + 3 * i + j)
+                sign.append(sg)
+    base = np.eye(n)
+    base[:6] = 0.0
+    out = (base, np.array(pos), np.array(src), np.array(sign))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
 #: samples whose run sums are computed in one pass (fewer after a re-linearisation)
 _CHUNK_SAMPLES = 2048
+
+
+def _earth(ekf):
+    """Per filter of the bank: (w_ie north, w_ie up, 1 / (R_M + h), 1 / (R_N + h), tan lat,
+    1 / cos lat, gravity, h) (what runs.advance_navigation reads); kept by the bank while
+    every filter stays within 1e-6 rad of latitude and 10 m of height of where they were
+    computed (that moves the Earth rate by 1e-10 rad/s and the radii by 2e-6 relative;
+    gravity follows the height in advance_navigation)."""
+    lat, h = ekf.lat, ekf.h
+    cached = ekf._earth
+    lat_l, h_l = lat.tolist(), h.tolist()       # (compared in floats: a few filters)
+    if (cached is not None and len(cached[0]) == len(lat_l)
+            and all(abs(a - b) < 1e-6 for a, b in zip(cached[0], lat_l))
+            and all(abs(a - b) < 10.0 for a, b in zip(cached[1], h_l))):
+        return cached[2]
+    rm, rn = radii(lat)
+    earth = np.stack([OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat),
+                      1.0 / (rm + h), 1.0 / (rn + h), np.tan(lat), 1.0 / np.cos(lat),
+                      normal_gravity(lat, h), h], -1).tolist()
+    ekf._earth = (lat_l, h_l, earth)
+    return earth
 
 
 class _Linearisation:
@@ -153,24 +198,18 @@ class _Linearisation:
         self.ids = ekf.ids.copy()
         self.bg, self.ba = ekf.bg.copy(), ekf.ba.copy()
         self.sf, self.sa = ekf.sf.copy(), ekf.sa.copy()
+        self._lists = {}
         self.w = (gyro - ekf.bg[:, None]) / (1.0 + ekf.sf[:, None])
         self.f = (accel - ekf.ba[:, None]) / (1.0 + ekf.sa[:, None])
-        lat, h = ekf.lat, ekf.h
-        #: per filter: (w_ie north, w_ie up, 1 / (R_M + h), 1 / (R_N + h), tan lat,
-        #: 1 / cos lat, gravity, h) (what runs.advance_navigation reads); kept by the bank
-        #: while every filter stays within 1e-6 rad of latitude and 10 m of height of where
-        #: they were computed (that moves the Earth rate by 1e-10 rad/s and the radii by
-        #: 2e-6 relative; gravity follows the height in advance_navigation)
-        cached = ekf._earth
-        if (cached is not None and cached[0].shape == lat.shape
-                and np.abs(cached[0] - lat).max() < 1e-6 and np.abs(cached[1] - h).max() < 10.0):
-            self.earth = cached[2]
-            return
-        rm, rn = radii(lat)
-        self.earth = np.stack([OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat),
-                               1.0 / (rm + h), 1.0 / (rn + h), np.tan(lat), 1.0 / np.cos(lat),
-                               normal_gravity(lat, h), h], -1).tolist()
-        ekf._earth = (lat.copy(), h.copy(), self.earth)
+        self.earth = _earth(ekf)
+
+    def lists(self, row):
+        """Row ``row``'s bg, ba, sf and sa as lists of floats (computed once)."""
+        out = self._lists.get(row)
+        if out is None:
+            out = self._lists[row] = (self.bg[row].tolist(), self.ba[row].tolist(),
+                                      self.sf[row].tolist(), self.sa[row].tolist())
+        return out
 
     def rows(self, ekf):
         """The rows of this pass's arrays of the bank's filters now (None: all, in order)."""
@@ -186,6 +225,12 @@ class _Linearisation:
         """Have the biases moved so far since this point that run r must be recomputed?"""
         rows = self.rows(ekf)
         T = float(s.T[r])
+        if ekf.K == 1 and ekf.i_sf is None and ekf.i_sa is None:
+            # one filter: the same test in floats
+            lbg, lba, _, _ = self.lists(0 if rows is None else int(rows[0]))
+            rot = max(abs(a - b) for a, b in zip(ekf.bg[0].tolist(), lbg))
+            vel = max(abs(a - b) for a, b in zip(ekf.ba[0].tolist(), lba))
+            return rot * T > RELINEARIZE_ROTATION or vel * T > RELINEARIZE_VELOCITY
         rot = np.abs(ekf.bg - self.take(self.bg, rows)).max()
         vel = np.abs(ekf.ba - self.take(self.ba, rows)).max()
         if ekf.i_sf is not None:
@@ -341,10 +386,14 @@ class InvariantEKF:
         ends = [int(e) for e in ends]
         if not ends or ends[-1] != m or any(b <= a for a, b in zip([0] + ends, ends)):
             raise ValueError(f"ends must increase from above 0 to {m}")
+        if m == 1 and self.K == 1 and gyro.ndim == 2:
+            self._step_one(float(dt[0]), gyro[0], accel[0])      # (the same, in floats)
+            yield 0
+            return
         # pieces of at most MAX_RUN s; owner[p]: the run a piece ends, or -1
-        tt = np.cumsum(dt)
-        pieces, owner = [], []
-        k = 0
+        tt = np.cumsum(dt) if m > 1 else None
+        pieces, owner = ([1], [0]) if m == 1 else ([], [])     # (one sample: one piece)
+        k = m if m == 1 else 0
         for r, e in enumerate(ends):
             while k < e:
                 p = k + max(1, int(np.searchsorted(tt[k:e], tt[k] - dt[k] + MAX_RUN, "right")))
@@ -384,6 +433,10 @@ class InvariantEKF:
     def _advance(self, s, r, lin, gyro_end, accel_end) -> None:
         """Apply run r of the sums ``s`` (bias-corrected to first order) to every filter."""
         rows = lin.rows(self)
+        if self.K == 1:
+            self._advance_one(s, r, lin, 0 if rows is None else int(rows[0]), gyro_end,
+                              accel_end)
+            return
         if rows is None:
             def g(a):
                 return a[:, r]
@@ -446,12 +499,98 @@ class InvariantEKF:
         self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
         self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
 
+    def _advance_one(self, s, r, lin, row, gyro_end, accel_end) -> None:
+        """:meth:`_advance` of a bank of one filter (row ``row`` of the pass): the same
+        arithmetic in Python floats and 2-D arrays, without the batch axis's per-call cost
+        (the equality test compares it with a bank of identical filters)."""
+        lbg, lba, lsf, lsa = lin.lists(row)
+        extra = {}
+        if s.Sw is not None:
+            extra.update(dsf=[x - y for x, y in zip(self.sf[0].tolist(), lsf)],
+                         Sw=s.Sw[row, r].ravel().tolist(), Mw=s.Mw[row, r].ravel().tolist())
+        if s.Sa is not None:
+            extra.update(dsa=[x - y for x, y in zip(self.sa[0].tolist(), lsa)],
+                         Sa=s.Sa[row, r].ravel().tolist())
+        self._advance_floats(float(s.T[r]), s.packed[row, r].tolist(),
+                             [x - y for x, y in zip(self.bg[0].tolist(), lbg)],
+                             [x - y for x, y in zip(self.ba[0].tolist(), lba)], extra,
+                             s.Q[row, r], lin.earth[row], gyro_end, accel_end)
+
+    def _step_one(self, dt: float, gyro, accel) -> None:
+        """One sample of a bank of one filter (a live stream's usual pass): what
+        :meth:`propagate_runs` does with a pass of one sample (the linearisation point is
+        the state of now, so the bias differences are zero; the sums of
+        :func:`~sins_align.estimators.in_motion.runs.one_sample_entries`), in floats."""
+        bg, ba = self.bg[0].tolist(), self.ba[0].tolist()
+        sf, sa = self.sf[0].tolist(), self.sa[0].tolist()
+        w = [(x - y) / (1.0 + z) for x, y, z in zip(gyro.tolist(), bg, sf)]
+        f = [(x - y) / (1.0 + z) for x, y, z in zip(accel.tolist(), ba, sa)]
+        packed, Sw, Mw, Sa = one_sample_entries(dt, w, f, self.i_sf is not None,
+                                                self.i_sa is not None)
+        zero = [0.0, 0.0, 0.0]
+        extra = {}
+        if Sw is not None:
+            extra.update(dsf=zero, Sw=Sw, Mw=Mw)
+        if Sa is not None:
+            extra.update(dsa=zero, Sa=Sa)
+        self._advance_floats(dt, packed, zero, zero, extra, white_noise_rate(self.noise, self.n)
+                             * dt, _earth(self)[0], gyro, accel)
+
+    def _advance_floats(self, T, sums, dbg, dba, extra, Q, earth, gyro_end, accel_end):
+        """The navigation and covariance of a bank of one filter over one run: sums (36
+        floats, :class:`~sins_align.estimators.in_motion.runs.RunSums`), the bias
+        differences from the linearisation point dbg, dba and ``extra`` (the scale-factor
+        sums and differences, 9 and 3 floats) as runs.advance_navigation takes them, the
+        run's noise Q (n, n)."""
+        C1, v1, lat, lon, h, Gb, Vb = advance_navigation(
+            self.C[0].ravel().tolist(), self.v[0].tolist(), float(self.lat[0]),
+            float(self.lon[0]), float(self.h[0]), sums, T, dbg, dba, earth, **extra)
+        # the transition's first six rows (the others are the identity's), as in _advance:
+        # the entries of Gb^T, Gb^T S, Gb^T (Vb x) and Gb^T M put in place with their signs
+        g0, g1, g2, g3, g4, g5, g6, g7, g8 = Gb
+        GbT = [g0, g3, g6, g1, g4, g7, g2, g5, g8]
+        Vx, Vy, Vz = Vb
+        blocks = np.array(GbT + _mm(GbT, sums[9:18])
+                          + _mm(GbT, [0.0, -Vz, Vy, Vz, 0.0, -Vx, -Vy, Vx, 0.0])
+                          + _mm(GbT, sums[18:27]))
+        base, pos, src, sign = _transition_layout(self.n)
+        Phi = base.copy()
+        Phi.reshape(-1)[pos] = blocks[src] * sign
+        if extra:
+            G = np.array(GbT).reshape(3, 3)
+            if "Sw" in extra:
+                Phi[IPHI, self.i_sf] = -G @ np.reshape(extra["Sw"], (3, 3))
+                Phi[INU, self.i_sf] = G @ np.reshape(extra["Mw"], (3, 3))
+            if "Sa" in extra:
+                Phi[INU, self.i_sa] = -G @ np.reshape(extra["Sa"], (3, 3))
+        P = Phi @ self.P[0] @ Phi.T + Q
+        P = P + P.T
+        P *= 0.5
+        self.P = P[None]
+        self.t_since_feedback += T
+        if self.schedule is not None:
+            self.dx = (Phi @ self.dx[0])[None]
+        nav = np.array(C1 + v1 + [lat, lon, h])        # one buffer, five arrays
+        self.C = nav[0:9].reshape(1, 3, 3)
+        self.v = nav[9:12].reshape(1, 3)
+        self.lat, self.lon, self.h = nav[12:13], nav[13:14], nav[14:15]
+        if gyro_end.ndim == 1:
+            self.w_last = np.array([[(x - y) / (1.0 + z) for x, y, z in zip(
+                gyro_end.tolist(), self.bg[0].tolist(), self.sf[0].tolist())]])
+            self.f_last = np.array([[(x - y) / (1.0 + z) for x, y, z in zip(
+                accel_end.tolist(), self.ba[0].tolist(), self.sa[0].tolist())]])
+        else:
+            self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
+            self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
+
     # ---------------------------------------------------------------- updates
     def _apply(self, y, H, R, nis_limit=None):
         """Kalman update of every filter: residuals y (K, d), models H (K, d, n), noise R
         (d, d) or (K, d, d); feeds the estimates back. Returns (NIS per degree of freedom
         before any inflation (K,), log-likelihood of y (K,): zeros for a single filter, which
         has no other to be weighed against)."""
+        if self.K == 1:
+            return self._apply_one(y[0], H[0], R if R.ndim == 2 else R[0], nis_limit)
         P = self.P
         PHT = P @ _mT(H)
         S = H @ PHT + R
@@ -485,10 +624,41 @@ class InvariantEKF:
         self.t_since_feedback = 0.0
         return nis, loglik
 
+    def _apply_one(self, y, H, R, nis_limit):
+        """:meth:`_apply` of a bank of one filter: y (d,), H (d, n), R (d, d); the same
+        arithmetic on 2-D arrays."""
+        P = self.P[0]
+        PHT = P @ H.T
+        S = H @ PHT + R
+        Sinv = 1.0 / S if len(y) == 1 else np.linalg.inv(S)     # (1 x 1: the same division)
+        Sy = Sinv @ y
+        nis = float(y @ Sy) / len(y)
+        if nis_limit is not None and nis > nis_limit:
+            a = nis / nis_limit
+            R = R + (a - 1.0) * S
+            Sinv = Sinv / a
+            Sy = Sy / a
+        Kg = PHT @ Sinv
+        IKH = self._eye - Kg @ H
+        P = IKH @ P @ IKH.T + Kg @ R @ Kg.T
+        self.P = (0.5 * (P + P.T))[None]
+        if self.schedule is None:
+            self._feedback_one(PHT @ Sy)
+        else:
+            dx = self.dx[0] + Kg @ (y - H @ self.dx[0])
+            u = self.schedule(self.t_since_feedback) @ dx
+            self._feedback_one(u)
+            self.dx = (dx - u)[None]
+        self.t_since_feedback = 0.0
+        return np.array([nis]), np.zeros(1)
+
     def corrected(self, i: int):
         """Filter i's state with the error estimate not yet fed back removed: (C, v, bg, ba,
         lever, mount, nhc_lever). With full feedback that is the state itself."""
         dx = self.dx[i]
+        if not dx.any():           # (full reset: nothing carried; the same values, copied)
+            return (self.C[i].copy(), self.v[i].copy(), self.bg[i].copy(), self.ba[i].copy(),
+                    self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy())
         C = self.C[i] @ so3_exp(-dx[IPHI])
         out = [C, self.v[i] - C @ dx[INU], self.bg[i] - dx[IBG], self.ba[i] - dx[IBA],
                self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy()]
@@ -502,6 +672,9 @@ class InvariantEKF:
 
     def feedback(self, dx) -> None:
         """Remove estimated errors ``dx`` (K, n) from the states (full reset)."""
+        if self.K == 1:
+            self._feedback_one(dx[0])
+            return
         self.C = self.C @ so3_exp(-dx[:, IPHI])
         self.v = self.v - np.einsum("kij,kj->ki", self.C, dx[:, INU])
         self.bg = self.bg - dx[:, IBG]
@@ -516,6 +689,33 @@ class InvariantEKF:
             self.sa = self.sa - dx[:, self.i_sa]
         if self.i_nhl is not None:
             self.nhc_lever = self.nhc_lever - dx[:, self.i_nhl]
+
+    def _feedback_one(self, dx) -> None:
+        """:meth:`feedback` of a bank of one filter, dx (n,): the same arithmetic in floats
+        (the attitude, velocity and biases in one new buffer)."""
+        d = dx.tolist()
+        C = _mm(self.C[0].ravel().tolist(), list(so3_exp_entries(-d[0], -d[1], -d[2])))
+        n0, n1, n2 = d[3:6]
+        v0, v1, v2 = self.v[0].tolist()
+        b = self.bg[0].tolist() + self.ba[0].tolist()
+        buf = np.array(C + [v0 - (C[0] * n0 + C[1] * n1 + C[2] * n2),
+                            v1 - (C[3] * n0 + C[4] * n1 + C[5] * n2),
+                            v2 - (C[6] * n0 + C[7] * n1 + C[8] * n2)]
+                       + [x - y for x, y in zip(b, d[6:12])])
+        self.C = buf[0:9].reshape(1, 3, 3)
+        self.v = buf[9:12].reshape(1, 3)
+        self.bg = buf[12:15].reshape(1, 3)
+        self.ba = buf[15:18].reshape(1, 3)
+        if self.i_lev is not None:
+            self.lever = (self.lever[0] - dx[self.i_lev])[None]
+        if self.i_mnt is not None:
+            self.mount = (self.mount[0] - dx[self.i_mnt])[None]
+        if self.i_sf is not None:
+            self.sf = (self.sf[0] - dx[self.i_sf])[None]
+        if self.i_sa is not None:
+            self.sa = (self.sa[0] - dx[self.i_sa])[None]
+        if self.i_nhl is not None:
+            self.nhc_lever = (self.nhc_lever[0] - dx[self.i_nhl])[None]
 
     def _body_rate(self):
         """(a, w_nb), each (K, 3), body axes: the navigation frame's rate (Earth and

@@ -27,8 +27,8 @@ from sins_align.core.preint import prefix_rotations
 from sins_align.core.earth import GRAVITY_PER_METRE
 from sins_align.core.rotation import quat_from_rotvec, so3_exp_entries
 
-__all__ = ["RunSums", "run_sums", "one_sample_sums", "advance_navigation",
-           "RELINEARIZE_ROTATION", "RELINEARIZE_VELOCITY"]
+__all__ = ["RunSums", "run_sums", "one_sample_sums", "one_sample_entries", "advance_navigation",
+           "mm", "white_noise_rate", "RELINEARIZE_ROTATION", "RELINEARIZE_VELOCITY"]
 
 #: largest rotation, rad, that a change of the gyro biases (or scale factors) since the
 #: linearisation point may cause over one run before the sums are computed anew; the
@@ -232,36 +232,53 @@ def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> Run
     cost of some fifty numpy calls on one-sample arrays. dt float; w, f (K, 3)."""
     dt = float(dt)
     K = len(w)
-    packed, Swl, Mwl, Sal = [], [], [], []
-    for (wx, wy, wz), (fx, fy, fz) in zip(np.asarray(w, float).tolist(),
-                                         np.asarray(f, float).tolist()):
-        h = so3_exp_entries(0.5 * wx * dt, 0.5 * wy * dt, 0.5 * wz * dt)
-        Gm = so3_exp_entries(wx * dt, wy * dt, wz * dt)
-        S = [x * dt for x in h]
-        dx, dy, dz = (c * dt for c in _mv(h, fx, fy, fz))
-        Hh = [0.5 * x for x in S]                              # R_1 dt / 2
-        Dx = (0.0, -dz, dy, dz, 0.0, -dx, -dy, dx, 0.0)        # (dV x)
-        M = _mm(Dx, Hh)
-        hd = 0.5 * dt
-        packed.append(list(Gm) + S + M + [dx, dy, dz] + [dx * hd, dy * hd, dz * hd] * 2)
-        if i_sf is not None:
-            rv = (wx * dt, wy * dt, wz * dt)
-            Sw = [h[3 * i + j] * rv[j] for i in range(3) for j in range(3)]
-            Swl.append(Sw)
-            Mwl.append(_mm(Dx, [0.5 * x for x in Sw]))
-        if i_sa is not None:
-            fd = (fx * dt, fy * dt, fz * dt)
-            Sal.append([h[3 * i + j] * fd[j] for i in range(3) for j in range(3)])
+    packed, Swl, Mwl, Sal, w_max, f_max = [], [], [], [], [], []
+    for wk, fk in zip(np.asarray(w, float).tolist(), np.asarray(f, float).tolist()):
+        w_max += wk
+        f_max += fk
+        p, Sw, Mw, Sa = one_sample_entries(dt, wk, fk, i_sf is not None, i_sa is not None)
+        packed.append(p)
+        Swl.append(Sw)
+        Mwl.append(Mw)
+        Sal.append(Sa)
 
     def arr(rows, shape):
         return np.array(rows).reshape((K, 1) + shape)
 
-    Q = np.broadcast_to(white_noise_rate(noise, n) * dt, (K, 1, n, n))
+    Q = (white_noise_rate(noise, n) * dt)[None, None]
+    if K > 1:
+        Q = np.broadcast_to(Q, (K, 1, n, n))
     return RunSums(np.array([dt]), arr(packed, (36,)), Q,
                    arr(Swl, (3, 3)) if i_sf is not None else None,
                    arr(Mwl, (3, 3)) if i_sf is not None else None,
                    arr(Sal, (3, 3)) if i_sa is not None else None,
-                   float(np.abs(w).max()), float(np.abs(f).max()))
+                   max(map(abs, w_max)), max(map(abs, f_max)))
+
+
+def one_sample_entries(dt: float, w, f, gyro_scale: bool = False, accel_scale: bool = False):
+    """One filter's sums of a one-sample run in floats (what :func:`one_sample_sums` gives
+    each filter): dt float; w, f 3 floats each. Returns (the 36 packed floats, Sw, Mw, Sa:
+    9 floats each, or None without the scale-factor states)."""
+    wx, wy, wz = w
+    fx, fy, fz = f
+    h = so3_exp_entries(0.5 * wx * dt, 0.5 * wy * dt, 0.5 * wz * dt)
+    Gm = so3_exp_entries(wx * dt, wy * dt, wz * dt)
+    S = [x * dt for x in h]
+    dx, dy, dz = (c * dt for c in _mv(h, fx, fy, fz))
+    Hh = [0.5 * x for x in S]                              # R_1 dt / 2
+    Dx = (0.0, -dz, dy, dz, 0.0, -dx, -dy, dx, 0.0)        # (dV x)
+    M = _mm(Dx, Hh)
+    hd = 0.5 * dt
+    packed = list(Gm) + S + M + [dx, dy, dz] + [dx * hd, dy * hd, dz * hd] * 2
+    Sw = Mw = Sa = None
+    if gyro_scale:
+        rv = (wx * dt, wy * dt, wz * dt)
+        Sw = [h[3 * i + j] * rv[j] for i in range(3) for j in range(3)]
+        Mw = _mm(Dx, [0.5 * x for x in Sw])
+    if accel_scale:
+        fd = (fx * dt, fy * dt, fz * dt)
+        Sa = [h[3 * i + j] * fd[j] for i in range(3) for j in range(3)]
+    return packed, Sw, Mw, Sa
 
 
 # ------------------------------------------------------------------ one filter, one run
@@ -275,6 +292,10 @@ def _mm(a, b):
             a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
             a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7,
             a6 * b2 + a7 * b5 + a8 * b8]
+
+
+#: the product of two row-major 3x3 lists (9 floats each), a list of 9 floats
+mm = _mm
 
 
 def _mv(a, x, y, z):
@@ -317,7 +338,10 @@ def advance_navigation(C, v, lat, lon, h, sums, T, dbg, dba, earth, dsf=None, Sw
     if dsa is not None:
         a = _mv(Sa, *dsa)
         Vx, Vy, Vz = Vx - a[0], Vy - a[1], Vz - a[2]
-    Gb = _mm(so3_exp_entries(-px, -py, -pz), Gm)
+    if px == 0.0 and py == 0.0 and pz == 0.0:     # (at the linearisation point: exp(0) = I)
+        Gb = list(Gm)
+    else:
+        Gb = _mm(so3_exp_entries(-px, -py, -pz), Gm)
     wn, wu, irm, irn, tanl, icos, g_c, h_c = earth
     vx, vy, vz = v
     x0, y0, z0 = _mv(C, Vx, Vy, Vz)                      # C0 V
