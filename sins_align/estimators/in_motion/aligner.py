@@ -156,18 +156,18 @@ class MotionAligner(EventSource, AttitudeReadout):
         if self.ekf is None:
             return np.eye(3) * math.pi ** 2
         ekf = self.ekf
-        J = self._jitter.covariance
+        jit = self._jitter.covariance                   # body axes
         if ekf.K == 1:
             Ce = ekf.C[0]
             cov = Ce @ ekf.P[0, IPHI, IPHI] @ Ce.T
-            if J.any():
+            if jit.any():
                 C = ekf.corrected_dcms()[0]
-                cov = cov + C @ J @ C.T
+                cov = cov + C @ jit @ C.T
             return cov
         covs = ekf.covariance_enu
         Cs = ekf.corrected_dcms()
         C = Cs[self._best]
-        jitter = C @ J @ C.T
+        jitter = C @ jit @ C.T
         # the Gaussian sum's covariance about the published (best) hypothesis: each
         # hypothesis' error carried to the best one's attitude, d away (the inverse left
         # Jacobian at d: up to 1.57 x on the level axes of one 180 deg off in heading)

@@ -232,10 +232,10 @@ def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> Run
     cost of some fifty numpy calls on one-sample arrays. dt float; w, f (K, 3)."""
     dt = float(dt)
     K = len(w)
-    packed, Swl, Mwl, Sal, w_max, f_max = [], [], [], [], [], []
+    packed, Swl, Mwl, Sal, w_all, f_all = [], [], [], [], [], []
     for wk, fk in zip(np.asarray(w, float).tolist(), np.asarray(f, float).tolist()):
-        w_max += wk
-        f_max += fk
+        w_all += wk
+        f_all += fk
         p, Sw, Mw, Sa = one_sample_entries(dt, wk, fk, i_sf is not None, i_sa is not None)
         packed.append(p)
         Swl.append(Sw)
@@ -252,7 +252,7 @@ def one_sample_sums(dt: float, w, f, noise, n: int, i_sf=None, i_sa=None) -> Run
                    arr(Swl, (3, 3)) if i_sf is not None else None,
                    arr(Mwl, (3, 3)) if i_sf is not None else None,
                    arr(Sal, (3, 3)) if i_sa is not None else None,
-                   max(map(abs, w_max)), max(map(abs, f_max)))
+                   max(map(abs, w_all)), max(map(abs, f_all)))
 
 
 def one_sample_entries(dt: float, w, f, gyro_scale: bool = False, accel_scale: bool = False):
