@@ -14,7 +14,10 @@ have moved so far that the neglected second-order term could reach 1e-10 rad
 
 Each sum is first taken in the frame of the first sample of the pass (prefix products and
 cumulative sums over the whole pass) and then turned into the frame of its run's start;
-inside a run the cumulative sums restart at zero, so no long sums are differenced.
+inside a run the cumulative sums restart at zero, so no long sums are differenced. A short
+pass of one filter (a live stream's rewind, up to :data:`SHORT_PASS` samples) is summed in
+Python floats instead (:func:`short_run_sums`, the same sums to rounding): numpy's per-call
+cost would outweigh its arithmetic there.
 """
 from __future__ import annotations
 
