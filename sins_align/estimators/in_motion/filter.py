@@ -97,10 +97,11 @@ from sins_align.core.earth import OMEGA_IE, normal_gravity, radii
 from sins_align.core.rotation import skew, so3_exp, so3_exp_entries, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
-                                                 advance_navigation, cross as _cross, mm as _mm,
+                                                 SHORT_PASS, advance_navigation,
+                                                 cross as _cross, mm as _mm,
                                                  one_sample_entries, white_noise_rate,
                                                  mT as _mT, one_sample_sums, run_sums,
-                                                 skew as _skew)
+                                                 short_run_sums, skew as _skew)
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "sample_transition",
            "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES"]
@@ -413,6 +414,10 @@ class InvariantEKF:
             if b - a == 1:
                 sums = one_sample_sums(dt[a], lin.w[:, 0], lin.f[:, 0], self.noise, self.n,
                                        self.i_sf, self.i_sa)
+            elif b - a <= SHORT_PASS and len(lin.w) == 1:
+                # one filter, a short pass (a live stream's rewind): the same sums in floats
+                sums = short_run_sums(dt[a:b], lin.w, lin.f, [p - a for p in pieces[i:j]],
+                                      self.noise, self.n, self.i_sf, self.i_sa)
             else:
                 sums = run_sums(dt[a:b], lin.w, lin.f, [p - a for p in pieces[i:j]],
                                 self.noise, self.n, self.i_sf, self.i_sa)

@@ -14,11 +14,15 @@ have moved so far that the neglected second-order term could reach 1e-10 rad
 
 Each sum is first taken in the frame of the first sample of the pass (prefix products and
 cumulative sums over the whole pass) and then turned into the frame of its run's start;
-inside a run the cumulative sums restart at zero, so no long sums are differenced.
+inside a run the cumulative sums restart at zero, so no long sums are differenced. A short
+pass of one filter (a live stream's rewind, up to :data:`SHORT_PASS` samples) is summed in
+Python floats instead (:func:`short_run_sums`, the same sums to rounding): numpy's per-call
+cost would outweigh its arithmetic there.
 """
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,8 +31,9 @@ from sins_align.core.preint import prefix_rotations
 from sins_align.core.earth import GRAVITY_PER_METRE
 from sins_align.core.rotation import quat_from_rotvec, so3_exp_entries
 
-__all__ = ["RunSums", "run_sums", "one_sample_sums", "one_sample_entries", "advance_navigation",
-           "mm", "white_noise_rate", "RELINEARIZE_ROTATION", "RELINEARIZE_VELOCITY"]
+__all__ = ["RunSums", "run_sums", "short_run_sums", "one_sample_sums", "one_sample_entries",
+           "advance_navigation", "SHORT_PASS", "mm", "white_noise_rate", "RELINEARIZE_ROTATION",
+           "RELINEARIZE_VELOCITY"]
 
 #: largest rotation, rad, that a change of the gyro biases (or scale factors) since the
 #: linearisation point may cause over one run before the sums are computed anew; the
@@ -211,6 +216,165 @@ def run_sums(dt, w, f, ends, noise, n: int, i_sf=None, i_sa=None) -> RunSums:
     packed = np.concatenate([Gm.reshape(K, R, 9), S.reshape(K, R, 9), M.reshape(K, R, 9),
                              V, Vt, Pm], axis=-1)
     return RunSums(T, packed, Q, Sw, Mw, Sa, w_max, f_max)
+
+
+#: longest pass of one filter whose sums :func:`short_run_sums` computes in floats; the
+#: vectorised :func:`run_sums` costs some 400 us in numpy calls at any length, the floats
+#: about 30 us plus 4-5 us a sample, so they break even near 150-200 samples (measured with
+#: 12 and 18 states); 64 keeps a 2x margin
+SHORT_PASS = 64
+
+
+def short_run_sums(dt, w, f, ends, noise, n: int, i_sf=None, i_sa=None) -> RunSums:
+    """:func:`run_sums` of a short pass of one filter (K == 1; w, f (1, N, 3)) in Python
+    floats: the same RunSums, field by field, to rounding (a live stream's rewinds re-sum
+    some ten samples, where numpy's per-call cost outweighs the arithmetic).
+
+    Each run is summed in its own start frame (the rotation restarts at the identity), so
+    the sums need no turning into it; the noise's D terms take a second pass over the run's
+    velocity sums once its end is known, turned into the run's end frame (``Gamma^T (a x)
+    Gamma = (Gamma^T a x)``)."""
+    dts = dt.tolist() if isinstance(dt, np.ndarray) else [float(x) for x in dt]
+    w = np.asarray(w, dtype=float)
+    f = np.asarray(f, dtype=float)
+    ws, fs = w[0].tolist(), f[0].tolist()
+    gyro_scale, accel_scale = i_sf is not None, i_sa is not None
+    packed, Ts, Cq, Bq, Swl, Mwl, Sal = [], [], [], [], [], [], []
+    a = 0
+    for e in ends:
+        e = int(e)
+        # the rotation from the run's start (x, y, z, w) and the running sums
+        qx = qy = qz = 0.0
+        qw = 1.0
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0                 # S
+        m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = 0.0                 # M
+        Vx = Vy = Vz = 0.0
+        tx = ty = tz = 0.0                                             # Vt
+        px = py = pz = 0.0                                             # Pm
+        u0 = u1 = u2 = u3 = u4 = u5 = u6 = u7 = u8 = 0.0                 # Sw
+        k0 = k1 = k2 = k3 = k4 = k5 = k6 = k7 = k8 = 0.0                 # Mw
+        a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = 0.0                 # Sa
+        tc = 0.0
+        vs = []
+        for j in range(a, e):
+            d = dts[j]
+            wx, wy, wz = ws[j]
+            fx, fy, fz = fs[j]
+            rx, ry, rz = wx * d, wy * d, wz * d
+            # h = exp(rv / 2) as a quaternion (half angle th / 4)
+            t2 = 0.25 * (rx * rx + ry * ry + rz * rz)
+            if t2 < 1e-8:
+                kk = 0.5 - t2 / 48.0
+                c = 1.0 + t2 * (-0.125 + t2 / 384.0)
+            else:
+                t = math.sqrt(t2)
+                kk = math.sin(0.5 * t) / t
+                c = math.cos(0.5 * t)
+            kk *= 0.5
+            hx, hy, hz = kk * rx, kk * ry, kk * rz
+            # the middle of the sample: q h; its end: q h h
+            mx = c * qx + qw * hx + qy * hz - qz * hy
+            my = c * qy + qw * hy + qz * hx - qx * hz
+            mz = c * qz + qw * hz + qx * hy - qy * hx
+            mw = c * qw - qx * hx - qy * hy - qz * hz
+            qx = c * mx + mw * hx + my * hz - mz * hy
+            qy = c * my + mw * hy + mz * hx - mx * hz
+            qz = c * mz + mw * hz + mx * hy - my * hx
+            qw = c * mw - mx * hx - my * hy - mz * hz
+            xx, yy, zz, ww = mx * mx, my * my, mz * mz, mw * mw
+            xy, xz, yz = mx * my, mx * mz, my * mz
+            wx_, wy_, wz_ = mw * mx, mw * my, mw * mz
+            r0, r1, r2 = ww + xx - yy - zz, 2.0 * (xy - wz_), 2.0 * (xz + wy_)
+            r3, r4, r5 = 2.0 * (xy + wz_), ww - xx + yy - zz, 2.0 * (yz - wx_)
+            r6, r7, r8 = 2.0 * (xz - wy_), 2.0 * (yz + wx_), ww - xx - yy + zz
+            # S += R dt; dV = R f dt; M += (dV x) (S - R dt / 2)
+            p0, p1, p2, p3, p4, p5, p6, p7, p8 = (r0 * d, r1 * d, r2 * d, r3 * d, r4 * d,
+                                                  r5 * d, r6 * d, r7 * d, r8 * d)
+            s0 += p0; s1 += p1; s2 += p2; s3 += p3; s4 += p4          # noqa: E702
+            s5 += p5; s6 += p6; s7 += p7; s8 += p8                    # noqa: E702
+            dx = (r0 * fx + r1 * fy + r2 * fz) * d
+            dy = (r3 * fx + r4 * fy + r5 * fz) * d
+            dz = (r6 * fx + r7 * fy + r8 * fz) * d
+            b0, b1, b2 = s0 - 0.5 * p0, s1 - 0.5 * p1, s2 - 0.5 * p2
+            b3, b4, b5 = s3 - 0.5 * p3, s4 - 0.5 * p4, s5 - 0.5 * p5
+            b6, b7, b8 = s6 - 0.5 * p6, s7 - 0.5 * p7, s8 - 0.5 * p8
+            m0 += dy * b6 - dz * b3; m1 += dy * b7 - dz * b4; m2 += dy * b8 - dz * b5  # noqa
+            m3 += dz * b0 - dx * b6; m4 += dz * b1 - dx * b7; m5 += dz * b2 - dx * b8  # noqa
+            m6 += dx * b3 - dy * b0; m7 += dx * b4 - dy * b1; m8 += dx * b5 - dy * b2  # noqa
+            # V, Vt = sum dV t (t: the sample's middle), Pm = sum (V_{j-1} + dV / 2) dt
+            tc += d
+            tm = tc - 0.5 * d
+            tx += dx * tm; ty += dy * tm; tz += dz * tm               # noqa: E702
+            hd = 0.5 * d
+            px += Vx * d + dx * hd; py += Vy * d + dy * hd; pz += Vz * d + dz * hd  # noqa
+            Vx += dx; Vy += dy; Vz += dz                              # noqa: E702
+            vs.append((d, Vx, Vy, Vz))
+            if gyro_scale:
+                # Sw += R (rv) (columns scaled); Mw += (dV x) (Sw - R (rv) / 2)
+                p0, p1, p2, p3, p4, p5, p6, p7, p8 = (r0 * rx, r1 * ry, r2 * rz, r3 * rx,
+                                                      r4 * ry, r5 * rz, r6 * rx, r7 * ry,
+                                                      r8 * rz)
+                u0 += p0; u1 += p1; u2 += p2; u3 += p3; u4 += p4      # noqa: E702
+                u5 += p5; u6 += p6; u7 += p7; u8 += p8                # noqa: E702
+                b0, b1, b2 = u0 - 0.5 * p0, u1 - 0.5 * p1, u2 - 0.5 * p2
+                b3, b4, b5 = u3 - 0.5 * p3, u4 - 0.5 * p4, u5 - 0.5 * p5
+                b6, b7, b8 = u6 - 0.5 * p6, u7 - 0.5 * p7, u8 - 0.5 * p8
+                k0 += dy * b6 - dz * b3; k1 += dy * b7 - dz * b4; k2 += dy * b8 - dz * b5  # noqa
+                k3 += dz * b0 - dx * b6; k4 += dz * b1 - dx * b7; k5 += dz * b2 - dx * b8  # noqa
+                k6 += dx * b3 - dy * b0; k7 += dx * b4 - dy * b1; k8 += dx * b5 - dy * b2  # noqa
+            if accel_scale:
+                ex, ey, ez = fx * d, fy * d, fz * d
+                a0 += r0 * ex; a1 += r1 * ey; a2 += r2 * ez           # noqa: E702
+                a3 += r3 * ex; a4 += r4 * ey; a5 += r5 * ez           # noqa: E702
+                a6 += r6 * ex; a7 += r7 * ey; a8 += r8 * ez           # noqa: E702
+        # the run's rotation Gm (normalised) and the noise's D terms in its end frame
+        nq = 1.0 / math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        qx, qy, qz, qw = qx * nq, qy * nq, qz * nq, qw * nq
+        xx, yy, zz, ww = qx * qx, qy * qy, qz * qz, qw * qw
+        xy, xz, yz = qx * qy, qx * qz, qy * qz
+        wx_, wy_, wz_ = qw * qx, qw * qy, qw * qz
+        g0, g1, g2 = ww + xx - yy - zz, 2.0 * (xy - wz_), 2.0 * (xz + wy_)
+        g3, g4, g5 = 2.0 * (xy + wz_), ww - xx + yy - zz, 2.0 * (yz - wx_)
+        g6, g7, g8 = 2.0 * (xz - wy_), 2.0 * (yz + wx_), ww - xx - yy + zz
+        ax = ay = az = d2 = cxx = cxy = cxz = cyy = cyz = czz = 0.0
+        for d, x, y, z in vs:
+            x, y, z = Vx - x, Vy - y, Vz - z                       # D_j, start frame
+            ex = g0 * x + g3 * y + g6 * z                          # Gm^T D_j
+            ey = g1 * x + g4 * y + g7 * z
+            ez = g2 * x + g5 * y + g8 * z
+            ax += ex * d; ay += ey * d; az += ez * d                  # noqa: E702
+            xd, yd, zd = ex * d, ey * d, ez * d
+            cxx += ex * xd; cxy += ex * yd; cxz += ex * zd            # noqa: E702
+            cyy += ey * yd; cyz += ey * zd; czz += ez * zd            # noqa: E702
+        d2 = cxx + cyy + czz
+        Cq.append((0.0, -az, ay, az, 0.0, -ax, -ay, ax, 0.0))
+        Bq.append((d2 - cxx, -cxy, -cxz, -cxy, d2 - cyy, -cyz, -cxz, -cyz, d2 - czz))
+        Ts.append(tc)
+        packed.append((g0, g1, g2, g3, g4, g5, g6, g7, g8, s0, s1, s2, s3, s4, s5, s6, s7, s8,
+                       m0, m1, m2, m3, m4, m5, m6, m7, m8, Vx, Vy, Vz, tx, ty, tz, px, py, pz))
+        if gyro_scale:
+            Swl.append((u0, u1, u2, u3, u4, u5, u6, u7, u8))
+            Mwl.append((k0, k1, k2, k3, k4, k5, k6, k7, k8))
+        if accel_scale:
+            Sal.append((a0, a1, a2, a3, a4, a5, a6, a7, a8))
+        a = e
+    R = len(Ts)
+    T = np.array(Ts)
+    qg = noise.gyro_arw ** 2
+    Q = white_noise_rate(noise, n) * T[:, None, None]
+    c = qg * np.array(Cq).reshape(R, 3, 3)
+    Q[:, 0:3, 3:6] = c
+    Q[:, 3:6, 0:3] = mT(c)
+    Q[:, 3:6, 3:6] += qg * np.array(Bq).reshape(R, 3, 3)
+
+    def mats(rows):
+        return np.array(rows).reshape(1, R, 3, 3)
+
+    return RunSums(T, np.array(packed).reshape(1, R, 36), Q[None],
+                   mats(Swl) if gyro_scale else None, mats(Mwl) if gyro_scale else None,
+                   mats(Sal) if accel_scale else None,
+                   float(np.abs(w).max()) if w.size else 0.0,
+                   float(np.abs(f).max()) if f.size else 0.0)
 
 
 @functools.lru_cache(maxsize=16)
