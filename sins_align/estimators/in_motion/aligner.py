@@ -622,11 +622,14 @@ class MotionAligner(EventSource, AttitudeReadout):
             z, R = payload
             # the reference does not vibrate, the IMU velocity does: compare the reference
             # with the IMU velocity less its jitter at this sample (jitter.py), rotated to
-            # ENU by each filter's attitude
+            # ENU by each filter's attitude, and take the jitter's change since the last
+            # update out of the transition too (it would couple the attitude error into a
+            # velocity error that this comparison cannot see)
             T = self.config.velocity_averaging
             hf = self._vjitter.at(t_now, T) if T > 0.0 else None
             if hf is not None:
                 z = z + ekf.C @ hf[0]                   # (K, 3)
+                ekf.exclude_velocity_jitter(hf[0])
             # the measurement is of the instant ts, the state of t_now (>= ts, within a
             # sample): move it by the (low-frequency) acceleration over the difference
             if t_now > ts:

@@ -33,11 +33,12 @@ class MotionConfig:
     lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (15 states).
     velocity_noise : m/s — 1-sigma of a velocity measurement that comes without covariance.
     velocity_averaging : s — the reference is compared with the IMU velocity less its jitter
-        over this interval before the measurement's sample (the velocity's trapezoid less
-        its mean over it: :class:`~sins_align.estimators.in_motion.jitter.VelocityJitter`),
-        which takes out the part of the accelerometer's vibration that the updates would
-        alias slowly; the interval between the reference's measurements (GNSS at 10 Hz:
-        0.1); 0: compare with the IMU velocity at the sample as it is.
+        over this interval before the measurement's sample (the velocity less its
+        least-squares straight line over it:
+        :class:`~sins_align.estimators.in_motion.jitter.VelocityJitter`), which takes the
+        accelerometer's vibration out of the updates (and the jitter's change out of the
+        filter's transition); the interval between the reference's measurements (GNSS at
+        10 Hz: 0.1); 0: compare with the IMU velocity at the sample as it is.
     max_measurement_lag : s — a measurement stamped up to this long before the newest IMU
         sample is applied at its stamp (the filter rewinds); older ones are refused.
     vehicle : 'ground' | 'air' | 'marine'; 'ground' applies the non-holonomic constraint.

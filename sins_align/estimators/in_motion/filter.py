@@ -310,13 +310,16 @@ class InvariantEKF:
         self.t_since_feedback = 0.0
         self.w_last = np.zeros((K, 3))
         self.f_last = np.zeros((K, 3))
+        #: the velocity jitter (ENU, m/s) taken out of the last velocity update
+        #: (:meth:`exclude_velocity_jitter`)
+        self.jitter_enu = np.zeros((K, 3))
         #: which filter of the original bank each one is (kept by :meth:`select`)
         self.ids = np.arange(K)
         self._eye = np.eye(self.n)
         self._earth = None            # (lat, h, earth list) of the last pass (_Linearisation)
 
     _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "sf", "sa",
-               "nhc_lever", "dx", "w_last", "f_last", "ids")
+               "nhc_lever", "dx", "w_last", "f_last", "jitter_enu", "ids")
 
     @property
     def K(self) -> int:
@@ -750,6 +753,36 @@ class InvariantEKF:
         if self.i_sf is not None:
             Hb[:, :, self.i_sf] = -_skew(lever) * self.w_last[:, None, :]
         return z_hat, C @ Hb
+
+    def exclude_velocity_jitter(self, jitter) -> None:
+        """Take the IMU velocity's jitter out of the transition since the last call.
+
+        jitter: (3,) m/s, body axes: the jitter of the IMU velocity now (the part of it a
+        velocity reference that does not vibrate cannot see; ``VelocityJitter`` in
+        :mod:`~sins_align.estimators.in_motion.jitter`), which the caller is about to take
+        out of a velocity update. The runs since the previous call coupled the attitude
+        error into the velocity error through the whole velocity increment
+        (``-(V x) phi``), the jitter's change ``d`` included; an update that compares the
+        reference with the IMU velocity less its jitter does not see that part, and a
+        transition that keeps it gives the filter attitude (heading) information from the
+        vibration that no measurement holds. So the velocity error is moved as if the
+        increment had been ``V - d``: ``nu <- nu + (d x) phi`` (``d`` in body axes now: the
+        jitter now less the previous one, carried in ENU by each filter's attitude). The
+        same change of the bias coupling (``(d x)`` times the run's ``S zeta_g``, below 1 %
+        of that coupling for a jitter of 0.01 m/s) is left out."""
+        jitter = np.asarray(jitter, dtype=float).reshape(3)
+        C = self.C
+        d = jitter - np.einsum("kji,kj->ki", C, self.jitter_enu)          # (K, 3), body
+        self.jitter_enu = C @ jitter
+        D = _skew(d)                                                      # (K, 3, 3)
+        P = self.P.copy()
+        P[:, INU, :] += D @ P[:, IPHI, :]
+        P[:, :, INU] += P[:, :, IPHI] @ _mT(D)
+        self.P = 0.5 * (P + _mT(P))
+        if self.schedule is not None:
+            dx = self.dx.copy()
+            dx[:, INU] += np.einsum("kij,kj->ki", D, dx[:, IPHI])
+            self.dx = dx
 
     def update_velocity(self, z, R, nis_limit=None):
         """Velocity of the antenna, ENU: (3,) for every filter, NaN components not measured,
