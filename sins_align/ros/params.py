@@ -139,7 +139,8 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("velocity_averaging", 0.1, "Interval over which the velocity reference is "
               "compared with the IMU velocity less its vibration jitter, s: the interval "
               "between velocity messages (0.1 at 10 Hz); 0 compares with the IMU velocity at "
-              "the message's sample as it is.", 0.0, 1.0),
+              "the message's sample as it is (the setting for a master INS, whose velocity "
+              "sees the same motion).", 0.0, 1.0),
     ParamSpec("max_measurement_lag", 0.5, "Velocity messages may arrive this much after the "
               "IMU passed their stamp, s (later ones are rejected).", 0.0, 60.0),
     ParamSpec("vehicle", "air", "Vehicle kind: ground (adds the non-holonomic constraint of a "

@@ -38,7 +38,8 @@ class MotionConfig:
         :class:`~sins_align.estimators.in_motion.jitter.VelocityJitter`), which takes the
         accelerometer's vibration out of the updates (and the jitter's change out of the
         filter's transition); the interval between the reference's measurements (GNSS at
-        10 Hz: 0.1); 0: compare with the IMU velocity at the sample as it is.
+        10 Hz: 0.1); 0: compare with the IMU velocity at the sample as it is (the setting
+        for a master INS, whose velocity sees the motion that the jitter would take out).
     max_measurement_lag : s — a measurement stamped up to this long before the newest IMU
         sample is applied at its stamp (the filter rewinds); older ones are refused.
     vehicle : 'ground' | 'air' | 'marine'; 'ground' applies the non-holonomic constraint.
