@@ -772,6 +772,17 @@ class InvariantEKF:
         of that coupling for a jitter of 0.01 m/s) is left out."""
         jitter = np.asarray(jitter, dtype=float).reshape(3)
         C = self.C
+        if self.K == 1 and self.schedule is None:
+            # (the same for one filter, on 2-D arrays)
+            C0 = C[0]
+            x, y, z = (jitter - self.jitter_enu[0] @ C0).tolist()
+            self.jitter_enu = (C0 @ jitter)[None]
+            D = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+            P = self.P[0].copy()
+            P[INU, :] += D @ P[IPHI, :]
+            P[:, INU] += P[:, IPHI] @ D.T
+            self.P = (0.5 * (P + P.T))[None]
+            return
         d = jitter - np.einsum("kji,kj->ki", C, self.jitter_enu)          # (K, 3), body
         self.jitter_enu = C @ jitter
         D = _skew(d)                                                      # (K, 3, 3)
