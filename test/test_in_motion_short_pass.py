@@ -83,14 +83,20 @@ def _filter(extra, seed=5):
                         extra=extra)
 
 
-def _counting(monkeypatch):
-    calls = []
+def _float_then_vectorised(monkeypatch):
+    """Yield (short, calls) twice: the filter on its float short-pass sums, then with
+    SHORT_PASS forced to 0 (run_sums); calls: the lengths of the passes the float path
+    summed since that yield."""
+    for short in (True, False):
+        if not short:
+            monkeypatch.setattr(filter_mod, "SHORT_PASS", 0)
+        calls = []
 
-    def counted(*args, **kw):
-        calls.append(len(args[0]))
-        return short_run_sums(*args, **kw)
-    monkeypatch.setattr(filter_mod, "short_run_sums", counted)
-    return calls
+        def counted(*args, calls=calls, **kw):
+            calls.append(len(args[0]))
+            return short_run_sums(*args, **kw)
+        monkeypatch.setattr(filter_mod, "short_run_sums", counted)
+        yield short, calls
 
 
 @pytest.mark.parametrize("extra", [(), ("lever", "gyro_scale", "accel_scale")])
@@ -104,10 +110,7 @@ def test_filter_on_short_passes_equals_the_vectorised_passes(extra, monkeypatch)
         dt, w, f, ends = _pass(rng, int(N), 0.5)
         data.append((dt, w[0], f[0], ends, rng.normal(0, 0.3, (len(ends), 3))))
     out = []
-    for short in (True, False):
-        if not short:
-            monkeypatch.setattr(filter_mod, "SHORT_PASS", 0)
-        calls = _counting(monkeypatch)
+    for short, calls in _float_then_vectorised(monkeypatch):
         e = _filter(extra)
         for dt, w, f, ends, noise in data:
             for r in e.propagate_runs(dt, w, f, ends):
@@ -133,10 +136,7 @@ def test_live_aligner_equals_its_vectorised_self(monkeypatch):
                        initial_rpy_deg=(0.0, 0.0, 30.0), initial_heading_std_deg=20.0)
     n = 1500
     out = []
-    for short in (True, False):
-        if not short:
-            monkeypatch.setattr(filter_mod, "SHORT_PASS", 0)
-        calls = _counting(monkeypatch)
+    for short, calls in _float_then_vectorised(monkeypatch):
         al = MotionAligner(cfg)
         j = 0
         for k in range(n):
