@@ -29,7 +29,7 @@ import numpy as np
 
 from sins_align.core.preint import prefix_rotations
 from sins_align.core.earth import GRAVITY_PER_METRE
-from sins_align.core.rotation import quat_from_rotvec, so3_exp_entries
+from sins_align.core.rotation import dcm_entries_from_quat, quat_from_rotvec, so3_exp_entries
 
 __all__ = ["RunSums", "run_sums", "short_run_sums", "one_sample_sums", "one_sample_entries",
            "advance_navigation", "SHORT_PASS", "mm", "white_noise_rate", "RELINEARIZE_ROTATION",
@@ -281,12 +281,7 @@ def short_run_sums(dt, w, f, ends, noise, n: int, i_sf=None, i_sa=None) -> RunSu
             qy = c * my + mw * hy + mz * hx - mx * hz
             qz = c * mz + mw * hz + mx * hy - my * hx
             qw = c * mw - mx * hx - my * hy - mz * hz
-            xx, yy, zz, ww = mx * mx, my * my, mz * mz, mw * mw
-            xy, xz, yz = mx * my, mx * mz, my * mz
-            wx_, wy_, wz_ = mw * mx, mw * my, mw * mz
-            r0, r1, r2 = ww + xx - yy - zz, 2.0 * (xy - wz_), 2.0 * (xz + wy_)
-            r3, r4, r5 = 2.0 * (xy + wz_), ww - xx + yy - zz, 2.0 * (yz - wx_)
-            r6, r7, r8 = 2.0 * (xz - wy_), 2.0 * (yz + wx_), ww - xx - yy + zz
+            r0, r1, r2, r3, r4, r5, r6, r7, r8 = dcm_entries_from_quat(mx, my, mz, mw)
             # S += R dt; dV = R f dt; M += (dV x) (S - R dt / 2)
             p0, p1, p2, p3, p4, p5, p6, p7, p8 = (r0 * d, r1 * d, r2 * d, r3 * d, r4 * d,
                                                   r5 * d, r6 * d, r7 * d, r8 * d)
@@ -328,14 +323,7 @@ def short_run_sums(dt, w, f, ends, noise, n: int, i_sf=None, i_sa=None) -> RunSu
                 a3 += r3 * ex; a4 += r4 * ey; a5 += r5 * ez           # noqa: E702
                 a6 += r6 * ex; a7 += r7 * ey; a8 += r8 * ez           # noqa: E702
         # the run's rotation Gm (normalised) and the noise's D terms in its end frame
-        nq = 1.0 / math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-        qx, qy, qz, qw = qx * nq, qy * nq, qz * nq, qw * nq
-        xx, yy, zz, ww = qx * qx, qy * qy, qz * qz, qw * qw
-        xy, xz, yz = qx * qy, qx * qz, qy * qz
-        wx_, wy_, wz_ = qw * qx, qw * qy, qw * qz
-        g0, g1, g2 = ww + xx - yy - zz, 2.0 * (xy - wz_), 2.0 * (xz + wy_)
-        g3, g4, g5 = 2.0 * (xy + wz_), ww - xx + yy - zz, 2.0 * (yz - wx_)
-        g6, g7, g8 = 2.0 * (xz - wy_), 2.0 * (yz + wx_), ww - xx - yy + zz
+        g0, g1, g2, g3, g4, g5, g6, g7, g8 = dcm_entries_from_quat(qx, qy, qz, qw)
         ax = ay = az = d2 = cxx = cxy = cxz = cyy = cyz = czz = 0.0
         for d, x, y, z in vs:
             x, y, z = Vx - x, Vy - y, Vz - z                       # D_j, start frame
