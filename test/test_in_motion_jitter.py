@@ -274,9 +274,9 @@ def test_vibrating_accelerometer_is_as_honest_as_without_vibration(monkeypatch):
     ours = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION) for s in seeds])
     assert ours <= clean + 0.005, (ours, clean)
     at = VelocityJitter.at
-    for name, patched in (("none", lambda self, t, T: None),
-                          ("reversed", lambda self, t, T: (lambda r: r and (-r[0], r[1]))(
-                              at(self, t, T)))):
+    for name, patched in (("none", lambda self, t, T, nominal=None: None),
+                          ("reversed", lambda self, t, T, nominal=None:
+                           (lambda r: r and (-r[0], r[1]))(at(self, t, T, nominal)))):
         monkeypatch.setattr(VelocityJitter, "at", patched)
         bad = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION) for s in seeds])
         assert bad > clean + 0.005, (name, bad, clean)
@@ -347,6 +347,6 @@ def test_heading_is_honest_while_the_bank_runs_under_accelerometer_vibration(mon
     in the updates only) it was 2.90; without any correction 5.66, which the test checks."""
     z = np.mean([_early_heading(s) for s in range(8)], axis=0)
     assert z[2] <= 1.6 and np.all(z[:2] <= 1.6), z
-    monkeypatch.setattr(VelocityJitter, "at", lambda self, t, T: None)
+    monkeypatch.setattr(VelocityJitter, "at", lambda self, t, T, nominal=None: None)
     bare = np.mean([_early_heading(s) for s in range(8)], axis=0)
     assert bare[2] > 2.0, bare

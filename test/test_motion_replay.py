@@ -111,14 +111,15 @@ def transfer_bag(tmp_path_factory):
     y.write_text("/**:\n  ros__parameters:\n    latitude: 34.43\n    longitude: 111.43\n"
                  "    height: 172.6\n    velocity_noise: 0.05\n    grade: consumer\n"
                  "    gyro_bias: 300.0\n    gyro_arw: 1.0\n    accel_bias: 10000.0\n"
-                 "    accel_vrw: 300.0\n")
+                 "    accel_vrw: 300.0\n    velocity_averaging: 0.0\n")
     return bag, y
 
 
 def test_real_master_odometry_is_rotated_from_its_body_frame(transfer_bag, tmp_path):
     """The master's Odometry twist is in master_link axes; rotated by its orientation it is
     the master's ENU velocity: both topics give the same alignment, which is within 3 sigma
-    of the slave's truth."""
+    of the slave's truth. (velocity_averaging 0, the master-INS setting, for both: its
+    default, -1, picks 0 for the Odometry topic only.)"""
     bag, y = transfer_bag
     common = [str(bag), "--params", str(y), "--truth-topic", "/imu_sim/truth", "--quiet"]
     out = [tmp_path / "enu.json", tmp_path / "odom.json"]

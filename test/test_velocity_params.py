@@ -38,7 +38,8 @@ BASE = {"latitude": 34.0}
     ("lever_arm", [0.0, 0.0, -1500.0], "lever_arm components must be within [-1000, 1000] m"),
     ("velocity_noise", 0.0, "velocity_noise must be within [0.0001, 100], got 0"),
     ("max_measurement_lag", -0.1, "max_measurement_lag must be within [0, 60]"),
-    ("velocity_averaging", 1.5, "velocity_averaging must be within [0, 1]"),
+    ("velocity_averaging", 1.5, "velocity_averaging must be within [-1, 1]"),
+    ("velocity_averaging", -0.5, "velocity_averaging must be -1 (auto) or within [0, 1] s"),
     ("vehicle", "car", "vehicle must be one of ground, air, marine, got 'car'"),
     ("navsat_topic", True, "navsat_topic must be a string"),
     ("longitude", 181.0, "longitude must be within [-180, 180], got 181"),
@@ -92,6 +93,12 @@ def test_a_velocity_topic_builds_the_in_motion_estimator_from_the_parameters():
     assert cfg.initial_rpy_deg == (1.0, 2.0, 30.0)
     # in motion: max_gap at most 1 s, max_angular_rate at least 10 rad/s
     assert (cfg.max_gap, cfg.max_angular_rate, cfg.attitude_matching) == (1.0, 10.0, True)
+    # velocity_averaging -1 (the default): 0 with a master INS (odometry), 0.1 with GNSS
+    auto = {**values, "velocity_averaging": P.param_spec("velocity_averaging").default}
+    assert auto["velocity_averaging"] == -1.0
+    assert P.estimator_config(auto).velocity_averaging == 0.0
+    for kind in ("twist_with_covariance", "twist"):
+        assert P.estimator_config({**auto, "velocity_type": kind}).velocity_averaging == 0.1
     tight = P.estimator_config({**values, "max_gap": 0.3, "max_angular_rate": 20.0})
     assert (tight.max_gap, tight.max_angular_rate) == (0.3, 20.0)
     assert cfg.nhc_axis == 1

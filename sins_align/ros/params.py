@@ -76,6 +76,26 @@ def _check_lever_arm(value) -> str | None:
     return None
 
 
+#: s — velocity_averaging of -1 (auto) with a GNSS velocity (0 with a master INS)
+GNSS_VELOCITY_AVERAGING = 0.1
+
+
+def _check_averaging(value) -> str | None:
+    if value != -1.0 and not 0.0 <= value <= 1.0:
+        return "velocity_averaging must be -1 (auto) or within [0, 1] s"
+    return None
+
+
+def velocity_averaging(values: dict[str, Any]) -> float:
+    """``velocity_averaging`` in s, -1 (auto) resolved: 0 when the reference is a master INS
+    (``velocity_type`` odometry: its velocity sees the motion the IMU does, vibration
+    included), :data:`GNSS_VELOCITY_AVERAGING` otherwise."""
+    v = float(values["velocity_averaging"])
+    if v != -1.0:
+        return v
+    return 0.0 if values["velocity_type"] == "odometry" else GNSS_VELOCITY_AVERAGING
+
+
 PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("latitude", math.nan, "Geodetic latitude of the IMU, deg (required).", -90.0, 90.0),
     ParamSpec("height", 0.0, "Height above the WGS-84 ellipsoid, m.", -10000.0, 100000.0),
@@ -136,11 +156,12 @@ PARAMS: tuple[ParamSpec, ...] = (
               "master INS), m, in the IMU frame.", rule=_check_lever_arm),
     ParamSpec("velocity_noise", 0.1, "Velocity reference noise 1-sigma, m/s, for messages "
               "without a covariance.", 1e-4, 100.0),
-    ParamSpec("velocity_averaging", 0.1, "Interval over which the velocity reference is "
+    ParamSpec("velocity_averaging", -1.0, "Interval over which the velocity reference is "
               "compared with the IMU velocity less its vibration jitter, s: the interval "
               "between velocity messages (0.1 at 10 Hz); 0 compares with the IMU velocity at "
               "the message's sample as it is (the setting for a master INS, whose velocity "
-              "sees the same motion).", 0.0, 1.0),
+              "sees the same motion); -1: 0 with velocity_type odometry, else 0.1.",
+              -1.0, 1.0, rule=_check_averaging),
     ParamSpec("max_measurement_lag", 0.5, "Velocity messages may arrive this much after the "
               "IMU passed their stamp, s (later ones are rejected).", 0.0, 60.0),
     ParamSpec("vehicle", "air", "Vehicle kind: ground (adds the non-holonomic constraint of a "
@@ -407,7 +428,7 @@ def motion_config_from_params(values: dict[str, Any]):
         height_m=float(m["height"]), specs=sensor_specs(m),
         lever_arm=tuple(float(x) for x in m["lever_arm"]),
         velocity_noise=float(m["velocity_noise"]),
-        velocity_averaging=float(m["velocity_averaging"]),
+        velocity_averaging=velocity_averaging(m),
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
         nhc_axis=int(m["lateral_axis"]),
         nhc_lever_arm=tuple(float(x) for x in m["nhc_lever_arm"]),

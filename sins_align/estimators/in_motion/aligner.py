@@ -43,6 +43,7 @@ from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFee
                                                       lqr_gain)
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel)
+from sins_align.estimators.in_motion.gaps import bridge_gaps
 from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 
@@ -122,6 +123,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._seq = 0
         self._applied: deque = deque()           # measurements applied, within the lag
         self._history: deque = deque()           # accepted samples (t, gyro, accel) arrays
+        self.nominal_dt: float | None = None     # s, the median interval at the start
         self._jitter = JitterMonitor()
         self._vjitter = VelocityJitter(c.max_measurement_lag + _HISTORY_MARGIN
                                        + c.velocity_averaging + 1.0)
@@ -325,7 +327,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         if self.t_first is None:
             self.t_first = float(t[0])
         self._jitter.add(t, w)
-        self._vjitter.add(t, f)
+        self._vjitter.add(t, f, w)
         k = 0
         if self.ekf is None:
             k = self._initialize(t, w, f)
@@ -365,6 +367,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         c = self.config
         buf = list(self._init_buf)
         self._init_buf.clear()
+        # the IMU's interval: lost samples later are holes against it (gaps.py)
+        self.nominal_dt = float(np.median(np.diff([b[0] for b in buf])))
         fs = np.array([b[2] for b in buf])
         ws = np.array([b[1] for b in buf])
         fm = fs.mean(axis=0)
@@ -577,19 +581,26 @@ class MotionAligner(EventSource, AttitudeReadout):
         times do not depend on the measurements' values), so the filter computes their
         sums ahead, many at once (:meth:`InvariantEKF.propagate_runs`)."""
         c = self.config
-        n = len(t)
-        if n == 0:
+        if len(t) == 0:
             return
-        dts = (np.array([float(t[0]) - prev]) if n == 1
-               else np.diff(np.concatenate(([prev], t))))
+        # lost samples: each hole bridged by a made-up sample, which ends a run (its
+        # variance is added there, before the measurements it reaches)
+        b = bridge_gaps(prev, t, w, f, self.nominal_dt, self._vjitter.before)
+        t, w, f, dts = b.t, b.w, b.f, b.dts
+        n = len(t)
+        fills = [float(t[i]) for i in b.fills]
         # the runs: each ends at the first sample reaching an event (or at the last one)
         stamps = [p[0] for p in self._pending]
         nhc = self._next_nhc
-        ends, j, k = [], 0, 0
+        ends, j, k, q = [], 0, 0, 0
         while k < n:
             t_ev = stamps[j] if j < len(stamps) else math.inf
             if nhc is not None:
                 t_ev = min(t_ev, nhc)
+            while q < len(fills) and fills[q] < float(t[k]):
+                q += 1
+            if q < len(fills):
+                t_ev = min(t_ev, fills[q])
             e = n if t_ev > t[-1] else min(max(int(np.searchsorted(t, t_ev, "left")) + 1,
                                                k + 1), n)
             ends.append(e)
@@ -599,9 +610,14 @@ class MotionAligner(EventSource, AttitudeReadout):
             if nhc is not None and nhc <= t_now:
                 nhc = t_now + c.nhc_period
             k = e
+        hole = dict(zip(b.fills, zip(b.var_w, b.var_f))) if b.fills else None
         for r in self.ekf.propagate_runs(dts, w, f, ends):
             e = ends[r]
             t_now = float(t[e - 1])
+            if hole is not None and e - 1 in hole:
+                self.ekf.add_body_noise(*hole[e - 1])
+                if not self._replaying:
+                    self.events["holes_bridged"] += 1
             while self._pending and self._pending[0][0] <= t_now:
                 item = self._pending.pop(0)
                 self._apply(item, t_now)
@@ -626,7 +642,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             # update out of the transition too (it would couple the attitude error into a
             # velocity error that this comparison cannot see)
             T = self.config.velocity_averaging
-            hf = self._vjitter.at(t_now, T) if T > 0.0 else None
+            hf = self._vjitter.at(t_now, T, self.nominal_dt) if T > 0.0 else None
             if hf is not None:
                 z = z + ekf.C @ hf[0]                   # (K, 3)
                 ekf.exclude_velocity_jitter(hf[0])

@@ -754,6 +754,17 @@ class InvariantEKF:
             Hb[:, :, self.i_sf] = -_skew(lever) * self.w_last[:, None, :]
         return z_hat, C @ Hb
 
+    def add_body_noise(self, var_attitude, var_velocity) -> None:
+        """Grow every filter's attitude and velocity error variances by ``var_attitude``
+        (3,) rad^2 and ``var_velocity`` (3,) (m/s)^2, body axes (the error state's own):
+        content of the increments that the samples do not hold (lost samples:
+        :mod:`~sins_align.estimators.in_motion.gaps`)."""
+        P = self.P.copy()           # (the stored states share the old one)
+        i = np.arange(3)
+        P[:, i, i] += np.asarray(var_attitude, dtype=float)
+        P[:, 3 + i, 3 + i] += np.asarray(var_velocity, dtype=float)
+        self.P = P
+
     def exclude_velocity_jitter(self, jitter) -> None:
         """Take the IMU velocity's jitter out of the transition since the last call.
 

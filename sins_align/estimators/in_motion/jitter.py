@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sins_align.estimators.in_motion.gaps import GAP_RATIO
+
 __all__ = ["JitterMonitor", "VelocityJitter", "WINDOW", "CUTOFF"]
 
 #: s of samples per window
@@ -143,31 +145,46 @@ class VelocityJitter:
         self.keep = float(keep)
         self._t = np.empty(0)
         self._f = np.empty((0, 3))
-        self._new: list = []                     # (t, f) blocks not yet joined
+        self._w = np.empty((0, 3))
+        self._new: list = []                     # (t, f, w) blocks not yet joined
 
-    def add(self, t, f) -> None:
-        """Accepted samples: stamps t (n,) s, increasing; specific force f (n, 3) m/s^2."""
+    def add(self, t, f, w=None) -> None:
+        """Accepted samples: stamps t (n,) s, increasing; specific force f (n, 3) m/s^2;
+        rates w (n, 3) rad/s, or None (zeros), held for :meth:`before`."""
         t = np.asarray(t, dtype=float).reshape(-1)
         if not len(t):
             return
-        self._new.append((t, np.asarray(f, dtype=float).reshape(-1, 3)))
+        f = np.asarray(f, dtype=float).reshape(-1, 3)
+        w = np.zeros_like(f) if w is None else np.asarray(w, dtype=float).reshape(-1, 3)
+        self._new.append((t, f, w))
         if len(self._new) >= 32:            # (questions come after this block's start)
             self._join(float(t[0]))
 
-    def _join(self, t_query: float) -> None:
+    def _join(self, t_query: float | None) -> None:
         """Join the new blocks; drop what is older than ``keep`` s before ``t_query`` (a
         block fed at once may reach far beyond the sample asked about) once that is as
-        much again."""
+        much again (None: drop nothing; the questions about earlier samples may follow)."""
         if self._new:
             self._t = np.concatenate([self._t] + [b[0] for b in self._new])
             self._f = np.concatenate([self._f] + [b[1] for b in self._new])
+            self._w = np.concatenate([self._w] + [b[2] for b in self._new])
             self._new = []
-        if len(self._t) and self._t[0] < t_query - 2.0 * self.keep:
+        if t_query is not None and len(self._t) and self._t[0] < t_query - 2.0 * self.keep:
             i = int(self._t.searchsorted(t_query - self.keep, "left"))
             self._t = self._t[i:]
             self._f = self._f[i:]
+            self._w = self._w[i:]
 
-    def at(self, t: float, interval: float):
+    def before(self, t_end: float, length: float):
+        """The samples held (t (m,), w (m, 3), f (m, 3)) stamped within ``[t_end - length,
+        t_end]`` (asked about the holes of a block before the block's measurements ask
+        :meth:`at` about its earlier samples: nothing is dropped here)."""
+        self._join(None)
+        i0 = int(self._t.searchsorted(t_end - length, "left"))
+        i1 = int(self._t.searchsorted(t_end, "right"))
+        return self._t[i0:i1], self._w[i0:i1], self._f[i0:i1]
+
+    def at(self, t: float, interval: float, nominal_dt: float | None = None):
         """(jitter (3,) m/s, mean specific force (3,) m/s^2), body axes, at the sample
         stamped ``t``, over the ``interval`` s before it (see the class); None when that
         sample is not held or the interval holds fewer than two sample intervals.
@@ -177,7 +194,11 @@ class VelocityJitter:
         the jitter is ``V_n - L(t)``. ``L(t) = sum_k a_k V_k`` with ``a_k = 1/(n+1) + (t_k -
         tbar) (t - tbar) / sum (t_k - tbar)^2``, and ``V_k = sum_{j<=k} f_j dt_j``, so the
         jitter is ``sum_j f_j dt_j (1 - A_j)`` with ``A_j = sum_{k>=j} a_k`` (one weight
-        per sample interval)."""
+        per sample interval).
+
+        Lost samples (an interval above ``GAP_RATIO`` x ``nominal_dt``): the sample after
+        the hole stands for one nominal interval and the window's mean specific force for
+        the rest, as the filter bridges it (:mod:`~sins_align.estimators.in_motion.gaps`)."""
         self._join(t)
         ts = self._t
         i1 = int(ts.searchsorted(t, "right")) - 1
@@ -191,10 +212,14 @@ class VelocityJitter:
         if i1 - i0 < 2:
             return None
         tw = ts[i0:i1 + 1]
-        T = t - tw[0]
         dt = tw[1:] - tw[:-1]
+        T = t - tw[0]
         tc = tw - tw.mean()
         a = 1.0 / len(tw) + tc * (tc[-1] / (tc @ tc))
         A = np.cumsum(a[::-1])[::-1][1:]                  # sum_{k >= j}, j = 1 .. n
         f = self._f[i0 + 1:i1 + 1]
-        return (dt * (1.0 - A)) @ f, (dt @ f) / T
+        dv = dt[:, None] * f                              # each interval's increment
+        if nominal_dt is not None and dt.max() > GAP_RATIO * nominal_dt:
+            h = dt > GAP_RATIO * nominal_dt
+            dv[h] = nominal_dt * f[h] + (dt[h, None] - nominal_dt) * f.mean(axis=0)
+        return (1.0 - A) @ dv, dv.sum(axis=0) / T
