@@ -17,7 +17,9 @@ they cannot say (:func:`bridge_gaps`):
 
 - the sample after the hole keeps one nominal interval; the rest of the hole, ``g``, is
   bridged by a made-up sample, the mean of the accepted samples over :data:`FILL_WINDOW` s
-  before the hole (the slow motion; the vibration averages out of it);
+  before the hole (the slow motion; the vibration averages out of it); when another hole
+  just before leaves that window less than half full (losses come in bursts), the last
+  window's worth of samples held within :data:`FILL_REACH` windows;
 - the hole's true content differs from that mean by its own fast part (vibration, noise)
   and by any change of the slow motion. Per axis, with ``s^2`` the variance of the samples
   about their mean over the window and ``d`` the sample after the hole less the mean, the
@@ -39,12 +41,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GAP_RATIO", "FILL_WINDOW", "Bridges", "bridge_gaps"]
+__all__ = ["GAP_RATIO", "FILL_WINDOW", "FILL_REACH", "Bridges", "bridge_gaps"]
 
 #: an interval above this multiple of the nominal interval is a hole
 GAP_RATIO = 1.5
 #: s of samples before a hole whose mean bridges it (at least 4 nominal intervals)
 FILL_WINDOW = 0.25
+#: how far back (in windows) a hole looks when its window holds less than half the samples
+#: it should (another hole just before it: losses come in bursts)
+FILL_REACH = 3.0
 
 
 class Bridges:
@@ -79,11 +84,15 @@ def bridge_gaps(prev: float, t, w, f, dt_nominal: float, before) -> Bridges:
     if not len(holes):
         return Bridges(t, dts, w, f)
     window = max(FILL_WINDOW, 4.0 * dt_nominal)
+    full = int(window / dt_nominal)         # the samples a window holds without holes
     ft, fw, ff, vw, vf = [], [], [], [], []
     for i in holes.tolist():
         t_prev = prev if i == 0 else float(t[i - 1])
         g = float(dts[i]) - dt_nominal
         _, ww, fs = before(t_prev, window)
+        if len(ww) < 0.5 * full:            # (a hole just before: the last samples held)
+            _, ww, fs = before(t_prev, FILL_REACH * window)
+            ww, fs = ww[-full:], fs[-full:]
         if len(ww) >= 2:
             mw, mf = ww.mean(axis=0), fs.mean(axis=0)
             sw, sf = ((ww - mw) ** 2).mean(axis=0), ((fs - mf) ** 2).mean(axis=0)
