@@ -23,14 +23,16 @@ they cannot say (:func:`bridge_gaps`):
 - the hole's true content differs from that mean by its own fast part (vibration, noise)
   and by any change of the slow motion. Per axis, with ``s^2`` the variance of the samples
   about their mean over the window and ``d`` the sample after the hole less the mean, the
-  variance added (body axes, at the hole's end: attitude from the rates, velocity from the
-  specific force) is ``g dt s^2 + (g d)^2``: the first as if the lost samples' deviations
-  were independent, the second a change up to the one the sample after the hole shows
-  (reached at the hole's start). Measured over 1,200 holes of 1-90 samples at random
-  places on seed 003's UAV (with and without vibration) and a city car: 0.06-0.7 % of
-  the axes beyond 3 sigma, the mean squared ratio 0.1-0.6; the misses are holes of 0.6 s
-  and more in a manoeuvre that starts and ends inside the hole (nothing in the samples
-  shows it; ``max_gap`` bounds the holes bridged at all).
+  variance is ``g dt s^2 + (g d)^2``, and the largest axis's is added to all three (body
+  axes, at the hole's end: attitude from the rates, velocity from the specific force; the
+  same on every axis, so no heading hypothesis of a bank is favoured by its shape): the
+  first as if the lost samples' deviations were independent, the second a change up to
+  the one the sample after the hole shows (reached at the hole's start). Measured per axis
+  over 1,200 holes of 1-90 samples at random places on seed 003's UAV (with and without
+  vibration) and a city car: 0.06-0.7 % of the axes beyond 3 sigma, the mean squared
+  ratio 0.1-0.6; the misses are holes of 0.6 s and more in a manoeuvre that starts and
+  ends inside the hole (nothing in the samples shows it; ``max_gap`` bounds the holes
+  bridged at all).
 
 A hole is an interval above :data:`GAP_RATIO` times the nominal interval (the median of the
 intervals the filter started with). Everything depends on the stamps and the samples only,

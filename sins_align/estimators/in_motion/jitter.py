@@ -197,8 +197,12 @@ class VelocityJitter:
         per sample interval).
 
         Lost samples (an interval above ``GAP_RATIO`` x ``nominal_dt``): the sample after
-        the hole stands for one nominal interval and the window's mean specific force for
-        the rest, as the filter bridges it (:mod:`~sins_align.estimators.in_motion.gaps`)."""
+        the hole stands for one nominal interval and this window's mean specific force (its
+        samples on both sides of the hole) for the rest; the filter bridges the hole with the
+        samples before it only (:mod:`~sins_align.estimators.in_motion.gaps`), the
+        difference being of the vibration's size over the hole. A measurement stamped
+        inside a hole is applied at the made-up sample, which this does not hold: that
+        update goes without the jitter correction."""
         self._join(t)
         ts = self._t
         i1 = int(ts.searchsorted(t, "right")) - 1
