@@ -363,6 +363,11 @@ def _build_cases() -> dict[str, Case]:
     }
     for name, fl in faults.items():
         cases.append(Case(name, 300.0, "car", faults=fl, expectations=_HONEST))
+    cases.append(Case("engine_ang_lost_single", 300.0, combine(
+        tone("angular", 0, 43.0, 0.01), tone("angular", 1, 29.0, 0.01), name="engine_ang"),
+        faults=faults["car_lost_single"], expectations=_HONEST,
+        note="roll 0.01 deg @ 43 Hz, pitch 0.01 deg @ 29 Hz (2.7 deg/s); one sample lost "
+             "every 20 s, 5 ms before a fine update"))
     cases.append(Case("static_consumer", 300.0, specs="consumer", expectations=_HONEST,
                       note="consumer grade: heading unobservable, only E and N count"))
     cases.append(Case("upside_down_from_identity", 300.0, rpy_deg=(180.0, 0.0, 30.0),

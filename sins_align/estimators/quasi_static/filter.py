@@ -245,6 +245,8 @@ class AlignmentFilter(FastPath, Backtrack):
     def _advance(self, dt, w, f, gap, dR=None, hole=(0.0, 0.0), bridge=None):
         """Mechanization (paper eq. 1), covariance propagation, and an update when due.
         ``dR``: exp(w dt), when the caller has it already."""
+        if self.fine and self.t_acc > 0.0 and (gap > 0.0 or hole[0] > 0.0 or hole[1] > 0.0):
+            self._close_interval()
         if gap > 0.0:
             # bridged as static: the errors grow over the gap, and when the recent mean rate
             # and specific force are given the state is mechanized with them over the gap as
@@ -293,6 +295,26 @@ class AlignmentFilter(FastPath, Backtrack):
             self._correct(self.v_sum / self.t_acc, Ha)
             self.v_sum = np.zeros((self.n, 3))
             self.t_acc = 0.0
+
+    def _close_interval(self):
+        """Fine pass, samples missing: the update of the interval so far, before the hole.
+
+        The mean velocity of an interval measures the attitude error through the averaged
+        H (``averaged_measurement_matrix``), which holds for an error present over the whole
+        interval. The error a hole adds (its variance, :meth:`_advance`) appears at the hole:
+        a mean closing 5 ms after it hardly sees it, and an update there would take that for
+        a small error and shrink the hole's level variance to almost nothing; the next one
+        then hands the level error's velocity to the heading (on a navigation IMU with 0.01
+        deg angular vibration, a hole every 20 s: the heading 2 deg off with a 0.9 deg std).
+        So the interval closes at the hole and the next starts after it. Its noise is the
+        full interval's times ``(period / T) ** 2``: the mean of a bounded sway over T errs
+        as 1 / T (white noise as 1 / sqrt(T)), so a short piece weighs little either way."""
+        T = self.t_acc
+        H = measurement_matrix(self.config.model, self.v)
+        Ha = averaged_measurement_matrix(H, self._F(-self.g_n + 0.0 * self.v), T)
+        self._correct(self.v_sum / T, Ha, scale=(self.fine_period / T) ** 2)
+        self.v_sum = np.zeros((self.n, 3))
+        self.t_acc = 0.0
 
     def _correct(self, z, H, scale: float = 1.0):
         prior = (self.P, self.S)
