@@ -78,10 +78,11 @@ def bridge_gaps(prev: float, t, w, f, dt_nominal: float, before) -> Bridges:
     n = len(t)
     if n == 1:                              # (a live stream's sample, in floats)
         dt = float(t[0]) - prev
+        dts = np.array([dt])
         if dt <= GAP_RATIO * dt_nominal:
-            return Bridges(t, np.array([dt]), w, f)
-    dts = (np.array([float(t[0]) - prev]) if n == 1
-           else np.diff(np.concatenate(([prev], t))))
+            return Bridges(t, dts, w, f)
+    else:
+        dts = np.diff(np.concatenate(([prev], t)))
     holes = np.flatnonzero(dts > GAP_RATIO * dt_nominal)
     if not len(holes):
         return Bridges(t, dts, w, f)

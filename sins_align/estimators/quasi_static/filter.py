@@ -246,7 +246,9 @@ class AlignmentFilter(FastPath, Backtrack):
         """Mechanization (paper eq. 1), covariance propagation, and an update when due.
         ``dR``: exp(w dt), when the caller has it already."""
         if self.fine and self.t_acc > 0.0 and (gap > 0.0 or hole[0] > 0.0 or hole[1] > 0.0):
-            self._close_interval()
+            # samples missing: the interval so far is updated before the hole (see below)
+            self._close_interval(self._F(-self.g_n + 0.0 * self.v),
+                                 (self.fine_period / self.t_acc) ** 2)
         if gap > 0.0:
             # bridged as static: the errors grow over the gap, and when the recent mean rate
             # and specific force are given the state is mechanized with them over the gap as
@@ -290,17 +292,15 @@ class AlignmentFilter(FastPath, Backtrack):
         self.v_sum += self.v * dt
         self.t_acc += dt
         if reached(self.t_acc, self.fine_period, dt):
-            H = measurement_matrix(self.config.model, self.v)
-            Ha = averaged_measurement_matrix(H, F, self.t_acc)
-            self._correct(self.v_sum / self.t_acc, Ha)
-            self.v_sum = np.zeros((self.n, 3))
-            self.t_acc = 0.0
+            self._close_interval(F)
 
-    def _close_interval(self):
-        """Fine pass, samples missing: the update of the interval so far, before the hole.
+    def _close_interval(self, F, scale: float = 1.0):
+        """Fine pass: the update with the mean velocity of the interval averaged so far
+        (transition matrix ``F``; the noise times ``scale``), and a new interval.
 
-        The mean velocity of an interval measures the attitude error through the averaged
-        H (``averaged_measurement_matrix``), which holds for an error present over the whole
+        Samples missing close the interval early, before the hole. The mean velocity of an
+        interval measures the attitude error through the averaged H
+        (``averaged_measurement_matrix``), which holds for an error present over the whole
         interval. The error a hole adds (its variance, :meth:`_advance`) appears at the hole:
         a mean closing 5 ms after it hardly sees it, and an update there would take that for
         a small error and shrink the hole's level variance to almost nothing; the next one
@@ -309,10 +309,9 @@ class AlignmentFilter(FastPath, Backtrack):
         So the interval closes at the hole and the next starts after it. Its noise is the
         full interval's times ``(period / T) ** 2``: the mean of a bounded sway over T errs
         as 1 / T (white noise as 1 / sqrt(T)), so a short piece weighs little either way."""
-        T = self.t_acc
         H = measurement_matrix(self.config.model, self.v)
-        Ha = averaged_measurement_matrix(H, self._F(-self.g_n + 0.0 * self.v), T)
-        self._correct(self.v_sum / T, Ha, scale=(self.fine_period / T) ** 2)
+        Ha = averaged_measurement_matrix(H, F, self.t_acc)
+        self._correct(self.v_sum / self.t_acc, Ha, scale=scale)
         self.v_sum = np.zeros((self.n, 3))
         self.t_acc = 0.0
 
