@@ -316,6 +316,51 @@ def test_late_measurements_equal_measurements_given_in_time():
     assert np.abs(attitude_error(a.dcm, b.dcm)).max() < 1e-7
     assert np.allclose(a.covariance, b.covariance, rtol=1e-5, atol=1e-15)
     assert a.aligned == b.aligned
+    # each update counted once, however often a rewind applied it again
+    given = np.count_nonzero((r.gnss_t > a.t_start) & (r.gnss_t <= r.t[n]))
+    assert a.events["velocity"] == given > 300
+    for key in ("velocity", "velocity_inflated", "heading_acquired", "hypotheses_merged"):
+        assert b.events[key] == a.events[key], key
+
+
+def test_a_ground_vehicle_counts_each_constraint_once_through_rewinds():
+    r, n = _short_run(15.0, seed=1)
+    a, b = MotionAligner(_cfg(vehicle="ground")), MotionAligner(_cfg(vehicle="ground"))
+    for tg, vg in zip(r.gnss_t, r.gnss_v):
+        a.add_velocity(tg, vg)
+    a.update(r.t[1:n + 1], r.gyro[:n], r.accel[:n])
+    early = r.gnss_t < 1.0
+    for tg, vg in zip(r.gnss_t[early], r.gnss_v[early]):
+        b.add_velocity(tg, vg)
+    queue = list(zip(r.gnss_t[~early] + 0.25, r.gnss_t[~early], r.gnss_v[~early]))
+    for k in range(n):
+        while queue and queue[0][0] <= r.t[k + 1]:
+            _, tg, vg = queue.pop(0)
+            b.add_velocity(tg, vg)
+        b.update(r.t[k + 1], r.gyro[k], r.accel[k])
+    for _, tg, vg in queue:
+        if tg <= r.t[n]:
+            b.add_velocity(tg, vg)
+    assert b.events["rewinds"] > 100
+    assert a.events["nhc"] > 100 and b.events["nhc"] == a.events["nhc"]
+    assert b.events["velocity"] == a.events["velocity"]
+
+
+def test_an_imu_gap_restarts_with_the_measurements_given_ahead():
+    """The velocity measurements given before the IMU samples survive the restart after a
+    gap above max_gap: the new start takes them, and the updates after it go on."""
+    r, n = _short_run(20.0)
+    al = MotionAligner(_cfg())
+    for tg, vg in zip(r.gnss_t, r.gnss_v):
+        al.add_velocity(tg, vg)
+    keep = np.ones(n, bool)
+    keep[800:1000] = False                                # 2 s without the IMU
+    idx = np.flatnonzero(keep)
+    al.update(r.t[idx + 1], r.gyro[idx], r.accel[idx])
+    assert al.rejected["time_jump"] == 1
+    assert al.events["started"] == 2 and al.initialized
+    # 10 Hz updates over both stretches (less the two starts' own): none lost
+    assert al.events["velocity"] >= 10 * (8 + 10) - 12
 
 
 def test_refusals_and_restarts():

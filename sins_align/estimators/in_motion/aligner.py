@@ -69,6 +69,9 @@ MOTION_STATES = ("waiting", "aligning", "aligned")
 HYPOTHESIS_SPREAD = 0.6
 #: s of history kept beyond max_measurement_lag (for the rewinds)
 _HISTORY_MARGIN = 0.2
+#: events of the updates a rewind re-applies: the snapshots keep their counts
+_REPLAYED_EVENTS = ("velocity", "velocity_inflated", "attitude", "nhc", "hypotheses_merged",
+                    "heading_acquired")
 #: a heading guess with a std above this (deg) is no guess: the bank of hypotheses starts
 HYPOTHESIS_MAX_STD_DEG = 30.0
 #: hypotheses whose weight falls below this are dropped
@@ -259,7 +262,11 @@ class MotionAligner(EventSource, AttitudeReadout):
             return len(idx)
         gap = float(t[jump]) - self.t_last
         self._reject("time_jump", float(t[jump]))
+        # the measurements not applied yet are still good for the new start (the one it
+        # takes is weighed by its age there); a caller that gave them ahead loses nothing
+        pending, seq = self._pending, self._seq
         self.reset(f"IMU gap of {gap:.3f} s")
+        self._pending, self._seq = pending, seq
         return len(idx) + self.update(t[jump + 1:], w[jump + 1:], f[jump + 1:])
 
     def _check(self, t, w, f):
@@ -537,13 +544,19 @@ class MotionAligner(EventSource, AttitudeReadout):
         k = len(self._snaps) - 1
         while k > 0 and self._snaps[k][0] >= ts:
             k -= 1
-        t_s, ekf, nhc, logw, best = self._snaps[k]
+        t_s, ekf, nhc, logw, best, counts = self._snaps[k]
         while len(self._snaps) > k + 1:
             self._snaps.pop()
         self.ekf = ekf.snapshot()
         self._next_nhc = nhc
         self._logw = logw.copy()
         self._best = best
+        # what the samples after t_s did is done again: counted again from there
+        for key, count in zip(_REPLAYED_EVENTS, counts):
+            if count:
+                self.events[key] = count
+            else:
+                self.events.pop(key, None)
         redo = [a for a in self._applied if a[0] > t_s]
         self._applied = deque(a for a in self._applied if a[0] <= t_s)
         for a in redo + [item]:
@@ -734,7 +747,7 @@ class MotionAligner(EventSource, AttitudeReadout):
 
     def _snap_now(self, t):
         self._snaps.append((t, self.ekf.snapshot(), self._next_nhc, self._logw.copy(),
-                            self._best))
+                            self._best, tuple(self.events[k] for k in _REPLAYED_EVENTS)))
 
     def _prune(self):
         keep = self.t_last - self.config.max_measurement_lag - _HISTORY_MARGIN
