@@ -41,6 +41,8 @@ BASE = {"latitude": 34.0}
     ("velocity_averaging", 1.5, "velocity_averaging must be within [-1, 1]"),
     ("velocity_averaging", -0.5, "velocity_averaging must be -1 (auto) or within [0, 1] s"),
     ("vehicle", "car", "vehicle must be one of ground, air, marine, got 'car'"),
+    ("gyro_scale_std", -0.5, "gyro_scale_std and accel_scale_std must be -1 (auto)"),
+    ("accel_scale_std", 2e5, "accel_scale_std must be within [-1, 100000]"),
     ("navsat_topic", True, "navsat_topic must be a string"),
     ("longitude", 181.0, "longitude must be within [-180, 180], got 181"),
     ("attitude_matching", 1.0, "attitude_matching must be true or false"),
@@ -111,6 +113,25 @@ def test_a_velocity_topic_builds_the_in_motion_estimator_from_the_parameters():
     ref = P.velocity_reference(values)
     assert ref == P.VelocityReference("gnss/fix_velocity", "odometry", "ned", "")
     assert ref.enabled
+
+
+def test_scale_factor_states_follow_the_gyro_in_use_unless_given():
+    """-1 (the default): none for a navigation-grade gyro, 300 ppm for a tactical one,
+    0.3 % for a MEMS one (its turns would otherwise put the attitude beyond 3 sigma), the
+    class decided by the gyro bias in use, a grade's or a given one; explicit values kept."""
+    base = {**BASE, "velocity_topic": "gnss/fix_velocity"}
+    assert P.param_spec("gyro_scale_std").default == P.param_spec("accel_scale_std").default
+    assert P.param_spec("gyro_scale_std").default == -1.0
+    for grade, want in (("navigation", 0.0), ("tactical", 3e-4), ("consumer", 3e-3)):
+        cfg = P.estimator_config({**base, "grade": grade})
+        assert (cfg.gyro_scale_std, cfg.accel_scale_std) == (want, want), grade
+    mems = P.estimator_config({**base, "grade": "navigation", "gyro_bias": 10.0})
+    assert mems.gyro_scale_std == 3e-3
+    given = P.estimator_config({**base, "grade": "consumer", "gyro_scale_std": 0.0,
+                                "accel_scale_std": 500.0})
+    assert (given.gyro_scale_std, given.accel_scale_std) == (0.0, 5e-4)
+    # the quasi-static estimator has no such states: nothing changes there
+    assert "gyro_scale_std" not in vars(P.estimator_config({**BASE, "grade": "consumer"}))
 
 
 def test_a_navsat_topic_needs_a_velocity_topic():

@@ -86,6 +86,30 @@ def _check_averaging(value) -> str | None:
     return None
 
 
+#: ppm — scale-factor std of -1 (auto), by the gyro bias in use: (bias bound deg/h, ppm);
+#: above the last bound the MEMS figure
+AUTO_SCALE_PPM = ((0.1, 0.0), (10.0, 300.0))
+MEMS_SCALE_PPM = 3000.0
+
+
+def _check_scale(value) -> str | None:
+    if value != -1.0 and not 0.0 <= value <= 1e5:
+        return "gyro_scale_std and accel_scale_std must be -1 (auto) or within [0, 1e5] ppm"
+    return None
+
+
+def scale_factor_stds(values: dict[str, Any]) -> tuple[float, float]:
+    """(gyro, accel) scale-factor 1-sigma as fractions, -1 (auto) resolved by the gyro bias
+    in use (:func:`sensor_specs`): none below 0.1 deg/h (a navigation-grade IMU's few ppm
+    do not show), 300 ppm below 10 deg/h (tactical: fibre-optic gyros, the better MEMS),
+    else 3000 ppm (0.3 %, MEMS: a turning vehicle's hundreds of degrees put its attitude
+    beyond 3 sigma unless the filter knows)."""
+    bias_dph = sensor_specs(values).gyro_bias / DPH
+    auto = next((ppm for bound, ppm in AUTO_SCALE_PPM if bias_dph < bound), MEMS_SCALE_PPM)
+    return tuple((auto if float(values[k]) == -1.0 else float(values[k])) * 1e-6
+                 for k in ("gyro_scale_std", "accel_scale_std"))
+
+
 def velocity_averaging(values: dict[str, Any]) -> float:
     """``velocity_averaging`` in s, -1 (auto) resolved: 0 when the reference is a master INS
     (``velocity_type`` odometry: its velocity sees the motion the IMU does, vibration
@@ -162,6 +186,13 @@ PARAMS: tuple[ParamSpec, ...] = (
               "the message's sample as it is (the setting for a master INS, whose velocity "
               "sees the same motion); -1: 0 with velocity_type odometry, else 0.1.",
               -1.0, 1.0, rule=_check_averaging),
+    ParamSpec("gyro_scale_std", -1.0, "Gyro scale-factor error 1-sigma per axis, ppm (in "
+              "motion): > 0 estimates the three scale factors (3 more states), 0 none; -1: "
+              "by the gyro bias in use, 0 below 0.1 deg/h, 300 below 10 deg/h, else 3000.",
+              -1.0, 1e5, rule=_check_scale),
+    ParamSpec("accel_scale_std", -1.0, "Accelerometer scale-factor error 1-sigma per axis, "
+              "ppm (in motion), as gyro_scale_std (-1: the same rule, by the gyro bias).",
+              -1.0, 1e5, rule=_check_scale),
     ParamSpec("max_measurement_lag", 0.5, "Velocity messages may arrive this much after the "
               "IMU passed their stamp, s (later ones are rejected).", 0.0, 60.0),
     ParamSpec("vehicle", "air", "Vehicle kind: ground (adds the non-holonomic constraint of a "
@@ -423,12 +454,14 @@ def motion_config_from_params(values: dict[str, Any]):
     from sins_align.estimators.in_motion import MotionConfig
 
     m = checked_values(values)
+    gyro_sf, accel_sf = scale_factor_stds(m)
     return MotionConfig(
         latitude_deg=float(m["latitude"]), longitude_deg=float(m["longitude"]),
         height_m=float(m["height"]), specs=sensor_specs(m),
         lever_arm=tuple(float(x) for x in m["lever_arm"]),
         velocity_noise=float(m["velocity_noise"]),
         velocity_averaging=velocity_averaging(m),
+        gyro_scale_std=gyro_sf, accel_scale_std=accel_sf,
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
         nhc_axis=int(m["lateral_axis"]),
         nhc_lever_arm=tuple(float(x) for x in m["nhc_lever_arm"]),
