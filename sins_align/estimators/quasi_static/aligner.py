@@ -838,7 +838,10 @@ class Aligner(EventSource, AttitudeReadout):
         self._recent.push(dt, w_in, f_in)
         fl = self.filter
         before = (fl.updates, fl.stage, id(fl))
-        fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None, hole, bridge)
+        if gap == 0.0 and hole == (0.0, 0.0) and fl.n == 1:
+            fl.step_one(dt, w, f, dR if dt == raw_dt else None)     # the ordinary sample
+        else:
+            fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None, hole, bridge)
         if (fl.updates, fl.stage, id(fl)) != before or hole != (0.0, 0.0):
             # the flag is re-evaluated where the covariance jumps (an update, the backtrack,
             # a hole); between updates it only grows by the process noise (the fast path

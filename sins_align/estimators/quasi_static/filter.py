@@ -290,6 +290,55 @@ class AlignmentFilter(FastPath, Backtrack):
             self.t_int += dt
             F = self._F(fn)
         self._propagate(F, dt)
+        self._measure(F, dt, (v0, v1, v2) if self.n == 1 else None)
+
+    def step_one(self, dt: float, w: np.ndarray, f: np.ndarray, dR=None) -> None:
+        """:meth:`step` for one run (N = 1) and an ordinary sample (no gap, no hole): w, f
+        (3,), ``dR`` exp(w dt) (3, 3) when the caller has it. The same operations on the same
+        numbers as step, without its general branches and calls (the node's per-sample path;
+        bit-identical, test_one_run_step.py)."""
+        if dR is None:
+            dR = so3_exp(w * dt)
+        buffering = self._buf is not None and not self.backtracked
+        if buffering:
+            self._buf.append(dt, w, f, 0.0)
+            self._B = np.dot(self._B[0], dR)[None]
+        E = self._cache.get(("E", dt))
+        if E is None:
+            E = self._earth_step(dt)
+        C = np.dot(np.dot(E, self.C[0]), dR)
+        fv = np.dot(C, f)
+        self.C = C[None]
+        f0, f1, f2 = fv.tolist()
+        g0, g1, g2 = self._g_floats
+        (v0, v1, v2), = self.v.tolist()
+        v0 += (f0 + g0) * dt
+        v1 += (f1 + g1) * dt
+        v2 += (f2 + g2) * dt
+        self.v = np.array([[v0, v1, v2]])
+        self.t_int += dt
+        F = self._Fconst if self.config.model == "constant" else self._F(fv[None])
+        hit = self._cache.get(("DT", dt)) if F.ndim == 2 else None
+        P, S = self.P, self.S
+        if hit is not None and len(P) == 1 and len(S) == 1:
+            # _propagate's one-covariance branch, its matrices cached (Phi, Qd 2-D)
+            Phi, PhiT, Qd, Gdt = hit
+            P = np.dot(np.dot(Phi, P[0]), PhiT)
+            P += Qd
+            S = np.dot(Phi, S[0])
+            S += Gdt
+            self.P, self.S = P[None], S[None]
+            self._node = None
+        else:
+            self._propagate(F, dt)
+        self._measure(F, dt, (v0, v1, v2))
+        if buffering and reached(self.t_int, self.config.backtrack_time, dt):
+            self.backtrack()
+
+    def _measure(self, F, dt: float, vf=None) -> None:
+        """After a sample's mechanization and propagation: the coarse pass's update when
+        due, or the fine pass's interval sum and its update when due (``vf``: the velocity
+        as three floats, one run)."""
         if not self.fine:
             # coarse pass: the paper's instantaneous zero-velocity update, at every sample or
             # every coarse_update_period; R scaled so the noise density does not depend on it
@@ -300,7 +349,8 @@ class AlignmentFilter(FastPath, Backtrack):
                 self._correct(self.v, H, scale=0.01 / self.t_acc)
                 self.t_acc = 0.0
             return
-        if self.n == 1:
+        if vf is not None:
+            v0, v1, v2 = vf
             (s0, s1, s2), = self.v_sum.tolist()
             s0 += v0 * dt
             s1 += v1 * dt
