@@ -1,7 +1,7 @@
 """Core estimator throughput: IMU samples per second (a script, not a test).
 
 Usage: python test/benchmarks/bench_core.py [--duration 600] [--runs 100] [--repeat 5]
-       [--cold-runs 7] [--cold-only]
+       [--cold-runs 7] [--cold-only] [--one-only [--rate 100]]
 
 A 100 Hz simulated navigation-grade data set (static, from [89, 89, 179] deg) through:
 - the reference path: the straightforward per-sample filter (AlignmentFilter.run), and
@@ -16,6 +16,10 @@ A 100 Hz simulated navigation-grade data set (static, from [89, 89, 179] deg) th
   interpreter, in microseconds per sample (the package imports are not timed, everything the
   call itself does is: the gain schedule, lazy imports of numpy submodules, first calls);
   best and range of --cold-runs fresh processes. --cold-only prints this row alone.
+- --one-only: the one-sample path alone, as align_node calls it (a float stamp, (3,) arrays),
+  coarse pass (before the backtrack) and fine pass (after it, the backtrack's own cost
+  included) separately, µs per sample, without and with the node's per-sample outputs
+  (``orientation_values``); --duration s at --rate Hz, best of --repeat.
 """
 from __future__ import annotations
 
@@ -97,6 +101,30 @@ def cold_row(runs: int):
           f"   target <= {TARGET_COLD_US:.1f}")
 
 
+def one_row(duration: float, rate: float, repeat: int):
+    """µs per sample of Aligner.update with one sample as align_node calls it, coarse and
+    fine pass apart, without and with the node's outputs after every sample."""
+    s = simulate(duration, rate, 34.0, specs="navigation", seed=1)
+    cfg = AlignConfig(latitude_deg=34.0, initial_rpy_deg=(89, 89, 179))
+    t, w, f = s.t.tolist(), list(s.gyro), list(s.accel)
+    n, kb = len(t), min(len(t), int(round(cfg.backtrack_time * rate)))
+    for outputs in (False, True):
+        best = [float("inf")] * 2
+        for _ in range(repeat):
+            al = Aligner(cfg)
+            upd, out = al.update, al.orientation_values
+            for i, (a, b) in enumerate(((0, kb), (kb, n))):
+                t0 = time.perf_counter()
+                for k in range(a, b):
+                    upd(t[k], w[k], f[k])
+                    if outputs:
+                        out()
+                best[i] = min(best[i], (time.perf_counter() - t0) / max(b - a, 1) * 1e6)
+        what = "update + orientation_values" if outputs else "update"
+        print(f"one sample per call, {rate:g} Hz, {duration:g} s, {what:<28} coarse "
+              f"{best[0]:6.1f} us  fine {best[1]:6.1f} us  (target <= {TARGET_ONE_US:g} us)")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=600.0, help="data length, s")
@@ -107,9 +135,15 @@ def main(argv=None):
     ap.add_argument("--cold-runs", type=int, default=7,
                     help="fresh processes for the cold 300 s row")
     ap.add_argument("--cold-only", action="store_true", help="only the cold 300 s row")
+    ap.add_argument("--one-only", action="store_true",
+                    help="only the one-sample path (the node's), coarse and fine pass")
+    ap.add_argument("--rate", type=float, default=100.0, help="--one-only: IMU rate, Hz")
     a = ap.parse_args(argv)
     if a.cold_only:
         cold_row(a.cold_runs)
+        return
+    if a.one_only:
+        one_row(a.duration, a.rate, a.repeat)
         return
     s = simulate(a.duration, 100.0, 34.0, specs="navigation", seed=1)
     n = len(s.t)

@@ -685,10 +685,10 @@ class Aligner(EventSource, AttitudeReadout):
         scale = np.maximum(floor, sd) / sd
         return Pa * (scale[:, :, None] * scale[:, None, :])
 
-    def _static_reason(self, w: np.ndarray, f: np.ndarray) -> str | None:
-        """The reason to reject a sample on its own values (no time line needed), or None."""
+    def _static_reason(self, f0: float, f1: float, f2: float) -> str | None:
+        """The reason to reject a sample on its own values (no time line needed), or None:
+        the specific force's components as floats."""
         c = self.config
-        f0, f1, f2 = f.tolist()
         fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
         if fn < 0.25 * self.g:
             return "gravity_removed"
@@ -733,14 +733,15 @@ class Aligner(EventSource, AttitudeReadout):
     def _sample(self, t: float, w: np.ndarray, f: np.ndarray) -> int:
         c = self.config
         w0, w1, w2 = w.tolist()
+        f0, f1, f2 = f.tolist()
         isfinite = math.isfinite
         if not (isfinite(t) and isfinite(w0) and isfinite(w1) and isfinite(w2)
-                and all(map(isfinite, f.tolist()))):
+                and isfinite(f0) and isfinite(f1) and isfinite(f2)):
             return self._reject("nonfinite", t)
         w_norm = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
         if self.t_last is None:
             # the first accepted sample anchors time; it has no interval to integrate over
-            why = self._static_reason(w, f)
+            why = self._static_reason(f0, f1, f2)
             if why is None and w_norm > c.max_angular_rate:
                 why = "rate_too_high"
             if why is not None:
@@ -772,7 +773,7 @@ class Aligner(EventSource, AttitudeReadout):
         nom = self.nominal_dt
         if nom is not None and dt < c.min_dt_ratio * nom:
             return self._reject("dt_too_small", t)
-        why = self._static_reason(w, f)
+        why = self._static_reason(f0, f1, f2)
         force_var = 0.0
         if why == "specific_force_out_of_range":
             f_ref = self._shock_reference(t)
@@ -837,7 +838,10 @@ class Aligner(EventSource, AttitudeReadout):
         self._recent.push(dt, w_in, f_in)
         fl = self.filter
         before = (fl.updates, fl.stage, id(fl))
-        fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None, hole, bridge)
+        if gap == 0.0 and hole == (0.0, 0.0) and fl.n == 1:
+            fl.step_one(dt, w, f, dR if dt == raw_dt else None)     # the ordinary sample
+        else:
+            fl.step(dt, w[None], f[None], gap, dR if dt == raw_dt else None, hole, bridge)
         if (fl.updates, fl.stage, id(fl)) != before or hole != (0.0, 0.0):
             # the flag is re-evaluated where the covariance jumps (an update, the backtrack,
             # a hole); between updates it only grows by the process noise (the fast path

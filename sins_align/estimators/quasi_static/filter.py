@@ -74,6 +74,7 @@ class AlignmentFilter(FastPath, Backtrack):
         self._Ue2 = self._Ue @ self._Ue
         # (3, 9): column 3 k + i holds column i of M_k, M = I, Ue, Ue^2 (see _advance_segments)
         self._g_col = self.g_n[:, None]
+        self._g_floats = tuple(self.g_n.tolist())
         self._Gv = np.stack([np.eye(3), self._Ue, self._Ue2]).transpose(1, 0, 2).reshape(3, 9)
         self._cache: dict = {}
         self._scratch: dict = {}       # the fast path's large temporaries, reused (scratch_array)
@@ -268,17 +269,76 @@ class AlignmentFilter(FastPath, Backtrack):
             self._node = None
         R = so3_exp(w * dt) if dR is None else dR
         if self.n == 1:
-            # one run (the node, replay): 2-D products (the stacked ones cost more)
+            # one run (the node, replay): 2-D products (the stacked ones cost more), and the
+            # velocity on floats: v + (C f + g) dt element by element, as numpy computes it
             C = np.dot(np.dot(self._earth_step(dt), self.C[0]), R.reshape(3, 3))
-            fn = np.dot(C, f.reshape(3))[None]
+            fv = np.dot(C, f.reshape(3))
             self.C = C[None]
+            f0, f1, f2 = fv.tolist()
+            g0, g1, g2 = self._g_floats
+            (v0, v1, v2), = self.v.tolist()
+            v0 += (f0 + g0) * dt
+            v1 += (f1 + g1) * dt
+            v2 += (f2 + g2) * dt
+            self.v = np.array([[v0, v1, v2]])
+            self.t_int += dt
+            F = self._Fconst if self.config.model == "constant" else self._F(fv[None])
         else:
             self.C = self._earth_step(dt) @ self.C @ R
             fn = (self.C @ f[..., None])[..., 0]
-        self.v = self.v + (fn + self.g_n) * dt
-        self.t_int += dt
-        F = self._F(fn)
+            self.v = self.v + (fn + self.g_n) * dt
+            self.t_int += dt
+            F = self._F(fn)
         self._propagate(F, dt)
+        self._measure(F, dt, (v0, v1, v2) if self.n == 1 else None)
+
+    def step_one(self, dt: float, w: np.ndarray, f: np.ndarray, dR=None) -> None:
+        """:meth:`step` for one run (N = 1) and an ordinary sample (no gap, no hole): w, f
+        (3,), ``dR`` exp(w dt) (3, 3) when the caller has it. The same operations on the same
+        numbers as step, without its general branches and calls (the node's per-sample path;
+        bit-identical, test_one_run_step.py)."""
+        if dR is None:
+            dR = so3_exp(w * dt)
+        buffering = self._buf is not None and not self.backtracked
+        if buffering:
+            self._buf.append(dt, w, f, 0.0)
+            self._B = np.dot(self._B[0], dR)[None]
+        E = self._cache.get(("E", dt))
+        if E is None:
+            E = self._earth_step(dt)
+        C = np.dot(np.dot(E, self.C[0]), dR)
+        fv = np.dot(C, f)
+        self.C = C[None]
+        f0, f1, f2 = fv.tolist()
+        g0, g1, g2 = self._g_floats
+        (v0, v1, v2), = self.v.tolist()
+        v0 += (f0 + g0) * dt
+        v1 += (f1 + g1) * dt
+        v2 += (f2 + g2) * dt
+        self.v = np.array([[v0, v1, v2]])
+        self.t_int += dt
+        F = self._Fconst if self.config.model == "constant" else self._F(fv[None])
+        hit = self._cache.get(("DT", dt)) if F.ndim == 2 else None
+        P, S = self.P, self.S
+        if hit is not None and len(P) == 1 and len(S) == 1:
+            # _propagate's one-covariance branch, its matrices cached (Phi, Qd 2-D)
+            Phi, PhiT, Qd, Gdt = hit
+            P = np.dot(np.dot(Phi, P[0]), PhiT)
+            P += Qd
+            S = np.dot(Phi, S[0])
+            S += Gdt
+            self.P, self.S = P[None], S[None]
+            self._node = None
+        else:
+            self._propagate(F, dt)
+        self._measure(F, dt, (v0, v1, v2))
+        if buffering and reached(self.t_int, self.config.backtrack_time, dt):
+            self.backtrack()
+
+    def _measure(self, F, dt: float, vf=None) -> None:
+        """After a sample's mechanization and propagation: the coarse pass's update when
+        due, or the fine pass's interval sum and its update when due (``vf``: the velocity
+        as three floats, one run)."""
         if not self.fine:
             # coarse pass: the paper's instantaneous zero-velocity update, at every sample or
             # every coarse_update_period; R scaled so the noise density does not depend on it
@@ -289,7 +349,15 @@ class AlignmentFilter(FastPath, Backtrack):
                 self._correct(self.v, H, scale=0.01 / self.t_acc)
                 self.t_acc = 0.0
             return
-        self.v_sum += self.v * dt
+        if vf is not None:
+            v0, v1, v2 = vf
+            (s0, s1, s2), = self.v_sum.tolist()
+            s0 += v0 * dt
+            s1 += v1 * dt
+            s2 += v2 * dt
+            self.v_sum = np.array([[s0, s1, s2]])
+        else:
+            self.v_sum += self.v * dt
         self.t_acc += dt
         if reached(self.t_acc, self.fine_period, dt):
             self._close_interval(F)

@@ -341,12 +341,28 @@ class UnitsMonitor:
         self.last_mismatch_deg = None       # scatter of u of the last judged window, deg
         self.last_limit_deg = None          # and the limit it was compared with, deg
         self._verdict_now: bool | None = None   # of the window add() closed, until taken
+        self._row = None        # (bin, its sums as floats): add()'s row not yet in acc
         self._start()
 
     def _start(self):
         self.T = 0.0
         self.B = np.eye(3)
         self.acc = np.zeros((self.bins, 7))     # per 1 s bin: sum dt, sum f dt, sum u dt
+
+    @property
+    def acc(self) -> np.ndarray:
+        """The bin sums (bins, 7). add() sums the current bin's row on floats (the same
+        additions in the same order) and writes it here when the bin changes, or when this
+        is read."""
+        row = self._row
+        if row is not None:
+            self._acc[row[0]] = row[1]
+            self._row = None
+        return self._acc
+
+    @acc.setter
+    def acc(self, value: np.ndarray) -> None:
+        self._acc, self._row = value, None
 
     def _gap(self, dt) -> float:
         """Largest interval that is not a gap (the Aligner's rule; max_gap while the
@@ -495,7 +511,8 @@ class UnitsMonitor:
         """One sample; returns exp(w dt), which the filter can reuse (None if skipped: a
         gap or a time jump, which also discards the window). A window closing here leaves
         its verdict for :meth:`take_verdict`."""
-        if not 0.0 < dt <= self._gap(None):
+        c, nom = self.al.config, self.al.nominal_dt     # self._gap(None), inline
+        if not (0.0 < dt <= c.max_gap and (nom is None or dt <= c.gap_ratio * nom)):
             self._start()
             return None
         w0, w1, w2 = w.tolist()
@@ -506,11 +523,19 @@ class UnitsMonitor:
         # scalar arithmetic on the 3-vectors (one sample: numpy calls cost more than the sums)
         f0, f1, f2 = f.tolist()
         (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B.tolist()
-        a = self.acc[j].tolist()
-        self.acc[j] = (a[0] + dt, a[1] + f0 * dt, a[2] + f1 * dt, a[3] + f2 * dt,
-                       a[4] + (b00 * f0 + b01 * f1 + b02 * f2) * dt,
-                       a[5] + (b10 * f0 + b11 * f1 + b12 * f2) * dt,
-                       a[6] + (b20 * f0 + b21 * f1 + b22 * f2) * dt)
+        row = self._row
+        if row is None or row[0] != j:
+            a = self.acc[j].tolist()            # (the property writes the last row back)
+            self._row = (j, a)
+        else:
+            a = row[1]
+        a[0] += dt
+        a[1] += f0 * dt
+        a[2] += f1 * dt
+        a[3] += f2 * dt
+        a[4] += (b00 * f0 + b01 * f1 + b02 * f2) * dt
+        a[5] += (b10 * f0 + b11 * f1 + b12 * f2) * dt
+        a[6] += (b20 * f0 + b21 * f1 + b22 * f2) * dt
         if self.T >= self.window:
             verdict = self._verdict(self.B, self.acc, self.T)
             if verdict is not None:
