@@ -47,7 +47,8 @@ class Backtrack:
             bridging |= adt > 1.5 * median(adt)
         u = start_frame_increments(adt, aw, af)     # shared by the two analyses
         C0, std0, v0 = self._fine_start(C0, adt, aw, af, u)
-        r_std, self.fine_period, q = self._sway_velocity_std(C0, adt, aw, af, u, bridging)
+        r_std, self.fine_period, q = self._sway_velocity_std(
+            C0, adt, aw, af, u, bridging, level_steps(hole[:, 0], gap))
         self.fine_R_std = r_std
         self._set_velocity_noise(q)
         R = np.zeros((self.n, 3, 3))
@@ -165,7 +166,7 @@ class Backtrack:
         self.schedules.put(key, out)
         return out
 
-    def _sway_velocity_std(self, C0, dt, w, f, u=None, bridging=None):
+    def _sway_velocity_std(self, C0, dt, w, f, u=None, bridging=None, steps=None):
         """Measure the sway velocity; pick the fine update period and its noise.
 
         Open-loop damped mechanization from ``C0`` over the buffer; a cubic per axis removes
@@ -191,6 +192,17 @@ class Backtrack:
         intervals that hold one (on the real laser-gyro log, 1 % of the samples dropped in
         bursts made the complete log's in-spec noise look 17 times the specs).
 
+        ``steps`` (rad^2 per sample, the level variance a hole added there) marks the holes
+        that may leave a level step: its velocity is a ramp from the hole on (g times the
+        step), which the filter estimates as attitude error but one cubic over the buffer
+        cannot follow. Where that ramp's std would move the interval means by more than
+        the noise floor in one base period, the residual gets a line of its own from the
+        hole on (a step and a ramp), and the means' spread is scaled up for the lines'
+        degrees of freedom. Without it, under 0.01 deg angular vibration at 43/29 Hz
+        (navigation grade, one sample lost every 20 s: steps of 0.0195 deg) the noise
+        measured 1.63 mm/s against 0.137 without holes, and the heading std came out at
+        1.5 deg against 0.05.
+
         Returns
         -------
         r_std : ndarray (N, 3), m/s ; period : float, s ; q : ndarray (N,), (m/s)^2/s, the
@@ -203,28 +215,37 @@ class Backtrack:
         tn = (t - t.mean()) / (t.std() + 1e-12)
         A = np.vander(tn, 4)
         Y = vs.reshape(len(dt), -1)
-        coef, *_ = np.linalg.lstsq(A, Y, rcond=None)
-        # running sum of the residuals: any interval's sum is a difference of two rows
-        csum = np.cumsum(Y - A @ coef, axis=0)
-        csum = np.concatenate([np.zeros((1, csum.shape[1])), csum])
         period = base = c.fine_update_period
         r_std = None
         q_cfg = c.specs.accel_vrw ** 2
+        coef, *_ = np.linalg.lstsq(A, Y, rcond=None)
+        csum = running_sum(Y - A @ coef)
+        pieces = None
+        if steps is not None:
+            ramp = math.sqrt(q_cfg * base / 3.0 + c.fine_min_velocity_noise ** 2) / base
+            cut = np.flatnonzero(self.g * np.sqrt(steps) > ramp)
+            cut = cut[cut > 0]
+            if len(cut):
+                # the cubic and a line per piece fitted together: both sides with each
+                # piece's own line taken out, then the cubic (Frisch-Waugh); kept when
+                # the base period's noise is smaller so, for the lines' degrees of freedom
+                pieces = np.concatenate([[0], cut, [len(dt)]])
+                Ap = A - piecewise_lines(t, A, pieces[:-1])
+                Yp = Y - piecewise_lines(t, Y, pieces[:-1])
+                coef, *_ = np.linalg.lstsq(Ap, Yp, rcond=None)
+                csum_p = running_sum(Yp - Ap @ coef)
+                m0 = interval_means(csum, t, dt, base)[0]
+                m1 = interval_means(csum_p, t, dt, base, pieces)[0]
+                if m1 is not None and m0 is not None and noise_power(m1) < noise_power(m0):
+                    csum = csum_p
+                else:
+                    pieces = None
         q = np.full(self.n, q_cfg)
         for mult in (1, 2, 5, 10, 20):
             p = base * mult
-            # by the sample midpoints, a hair early: the midpoint of a double interval (a
-            # rejected or missing sample) can fall on a boundary, where rounding would decide
-            # (the fine pass's updates count that sample in the interval it closes, the
-            # earlier one: fast_path.reached)
-            idx = np.floor((t - (0.5 + DUE_TOL) * dt) / p).astype(int)
-            n_int = int(idx[-1])
-            if n_int < 8:
+            means, edges, counts, n_int = interval_means(csum, t, dt, p, pieces)
+            if means is None:
                 break
-            # idx never decreases: interval j holds the samples edges[j] .. edges[j+1] - 1
-            edges = np.searchsorted(idx, np.arange(n_int + 1))
-            counts = np.diff(edges)
-            means = (csum[edges[1:]] - csum[edges[:-1]]) / np.maximum(counts, 1)[:, None]
             d = np.diff(means, axis=0)
             # half the mean square difference (blind to a slow wander), but never below the
             # variance of the means themselves: a sway that is not white (a slow tone) has
@@ -315,6 +336,77 @@ def velocity_random_walk(d: np.ndarray, p: float, q0: float = 0.0, z: float = 2.
             lrv = lrv + 2.0 * np.sum(e[k:] * e[:-k], axis=0) / m
     se = np.sqrt(np.maximum(lrv, np.mean(e * e, axis=0) / 4.0) / m)
     return qp / p, qp > q0 * p + z * se
+
+
+def running_sum(res: np.ndarray) -> np.ndarray:
+    """(M + 1, K): the running sum of the residuals ``res`` (M, K) from a row of zeros (any
+    interval's sum is a difference of two rows)."""
+    csum = np.cumsum(res, axis=0)
+    return np.concatenate([np.zeros((1, csum.shape[1])), csum])
+
+
+def interval_means(csum, t, dt, p: float, pieces=None):
+    """The means (n, K) of the residuals whose running sum is ``csum`` over intervals of
+    ``p`` s, with the sample index ``edges`` (n + 1) where each starts, their sample
+    ``counts`` (n) and ``n``; (None, None, None, n) when fewer than 8 are left.
+
+    With ``pieces`` (the sample indices where the residual's lines start, and its length),
+    the means are scaled up by ``sqrt(n / (n - lost))``: each line after the first (the
+    cubic's own) takes two degrees of freedom of the means (a piece shorter than two
+    intervals, what it spans)."""
+    # by the sample midpoints, a hair early: the midpoint of a double interval (a
+    # rejected or missing sample) can fall on a boundary, where rounding would decide
+    # (the fine pass's updates count that sample in the interval it closes, the
+    # earlier one: fast_path.reached)
+    idx = np.floor((t - (0.5 + DUE_TOL) * dt) / p).astype(int)
+    n_int = int(idx[-1])
+    lost = 0.0
+    if pieces is not None:
+        span = (t[pieces[2:] - 1] - t[pieces[1:-1]] + dt[pieces[1:-1]]) / p
+        lost = float(np.minimum(span, 2.0).sum())
+    if n_int - lost < 8:
+        return None, None, None, n_int
+    # idx never decreases: interval j holds the samples edges[j] .. edges[j+1] - 1
+    edges = np.searchsorted(idx, np.arange(n_int + 1))
+    counts = np.diff(edges)
+    means = (csum[edges[1:]] - csum[edges[:-1]]) / np.maximum(counts, 1)[:, None]
+    if lost:
+        means = means * math.sqrt(n_int / (n_int - lost))
+    return means, edges, counts, n_int
+
+
+def noise_power(means: np.ndarray) -> float:
+    """The measurement noise the interval ``means`` (n, K) show, summed over the columns:
+    half their differences' mean square, or their own when larger (as the sway analysis)."""
+    d = np.diff(means, axis=0)
+    return float(np.maximum(0.5 * np.mean(d ** 2, axis=0), np.mean(means ** 2, axis=0)).sum())
+
+
+def level_steps(va: np.ndarray, gap: np.ndarray) -> np.ndarray:
+    """The holes' level variance ``va`` (M,) of the buffered samples on the time line of
+    :func:`bridged`: a gap's on the sample put in for it (the step happens there), a short
+    hole's on the sample that spans it."""
+    k = np.flatnonzero(gap > 0.0)
+    if not len(k):
+        return va
+    put = k + np.arange(len(k))
+    out = np.insert(va, k, va[k])
+    out[put + 1] = 0.0
+    return out
+
+
+def piecewise_lines(t: np.ndarray, y: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """The least-squares line of ``y`` (M, K) against ``t`` (M,) on each piece of samples
+    ``starts[j] .. starts[j + 1] - 1`` (the last to the end; ``starts[0] == 0``), evaluated
+    at every sample (M, K)."""
+    n = np.diff(np.append(starts, len(t)))
+    idx = np.repeat(np.arange(len(starts)), n)
+    tc = t - np.repeat(np.add.reduceat(t, starts) / n, n)         # centred per piece
+    ym = np.add.reduceat(y, starts, axis=0) / n[:, None]
+    stt = np.add.reduceat(tc * tc, starts)
+    sty = np.add.reduceat(tc[:, None] * y, starts, axis=0)
+    b = np.where(stt[:, None] > 0.0, sty / np.where(stt > 0.0, stt, 1.0)[:, None], 0.0)
+    return ym[idx] + b[idx] * tc[:, None]
 
 
 def median(x: np.ndarray) -> float:
