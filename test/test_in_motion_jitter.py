@@ -92,7 +92,7 @@ def test_blocks_and_one_by_one_give_the_same_jitter():
     assert not seen[50].any() and seen[-1].any()
 
 
-def _vibrating_uav(seed, seconds=120.0, vibration=UAV_VIBRATION, clean=False):
+def _vibrating_uav(seed, seconds=120.0, vibration=UAV_VIBRATION, clean=False, **cfg):
     """(e / sigma with the jitter, without it, the jitter's std) at every 0.1 s once the
     heading is acquired; ``clean``: the same run with the accelerometer's vibration taken
     out of the samples (every other error drawn the same)."""
@@ -103,7 +103,7 @@ def _vibrating_uav(seed, seconds=120.0, vibration=UAV_VIBRATION, clean=False):
         r.accel = r.accel - (1.0 + r.accel_scale) * r.accel_vibration
     al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
                                     height_m=traj.height_m, specs=SEED003_SPECS,
-                                    velocity_noise=0.05))
+                                    velocity_noise=0.05, **cfg))
     for tg, vg in zip(r.gnss_t, r.gnss_v):
         al.add_velocity(tg, vg)
     with_j, without_j, jit = [], [], []
@@ -268,17 +268,25 @@ def test_vibrating_accelerometer_is_as_honest_as_without_vibration(monkeypatch):
     without the correction, or with its sign reversed, it is. Measured for seeds 0-2,
     pooled: 2.0 % corrected, 2.3 % without vibration, 3.3 % uncorrected; 16 seeds: 1.07 %,
     1.27 %, 1.77 %. (The 1.5 % of the test above is out of reach for seeds 0-2 without
-    any vibration.)"""
+    any vibration.) The teeth are measured with a bank of 12 heading hypotheses (the
+    default until session 15): with the 24 of now the uncorrected runs of seeds 0-2 are
+    2.6 % against 2.35 % clean, inside the margin, as the smaller spread of each hypothesis
+    leaves less linearisation error for the vibration to add to."""
     seeds = (0, 1, 2)
     clean = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION, clean=True) for s in seeds])
     ours = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION) for s in seeds])
+    assert ours <= clean + 0.005, (ours, clean)
+    twelve = dict(heading_hypotheses=12)
+    clean = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION, clean=True, **twelve)
+                   for s in seeds])
+    ours = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION, **twelve) for s in seeds])
     assert ours <= clean + 0.005, (ours, clean)
     at = VelocityJitter.at
     for name, patched in (("none", lambda self, t, T, nominal=None: None),
                           ("reversed", lambda self, t, T, nominal=None:
                            (lambda r: r and (-r[0], r[1]))(at(self, t, T, nominal)))):
         monkeypatch.setattr(VelocityJitter, "at", patched)
-        bad = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION) for s in seeds])
+        bad = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION, **twelve) for s in seeds])
         assert bad > clean + 0.005, (name, bad, clean)
     monkeypatch.undo()
 

@@ -24,7 +24,7 @@ built and tuned):
   erroneous yaw as a guess of 30 deg std (the largest that still runs one filter); it takes
   roll and pitch from the accelerometers at the start, as it always does, so its level
   start is not the erroneous one.
-- ``ours``: ``MotionAligner`` as shipped, heading unknown (std 180 deg: the bank of 12
+- ``ours``: ``MotionAligner`` as shipped, heading unknown (std 180 deg: the bank of 24
   heading hypotheses).
 
 Metrics per case and filter over the runs, from the state after each GNSS update (10 Hz):

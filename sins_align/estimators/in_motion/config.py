@@ -114,7 +114,7 @@ class MotionConfig:
     nhc_slip_time: float = 3.0
     initial_rpy_deg: tuple | None = None
     initial_heading_std_deg: float = 180.0
-    heading_hypotheses: int = 12
+    heading_hypotheses: int = 24
     init_time: float = 0.5
     attitude_matching: bool = False
     attitude_noise_deg: float = 0.1
