@@ -272,25 +272,33 @@ class AlignmentFilter(FastPath, Backtrack):
             # one run (the node, replay): 2-D products (the stacked ones cost more), and the
             # velocity on floats: v + (C f + g) dt element by element, as numpy computes it
             C = np.dot(np.dot(self._earth_step(dt), self.C[0]), R.reshape(3, 3))
-            fv = np.dot(C, f.reshape(3))
-            self.C = C[None]
-            f0, f1, f2 = fv.tolist()
-            g0, g1, g2 = self._g_floats
-            (v0, v1, v2), = self.v.tolist()
-            v0 += (f0 + g0) * dt
-            v1 += (f1 + g1) * dt
-            v2 += (f2 + g2) * dt
-            self.v = np.array([[v0, v1, v2]])
-            self.t_int += dt
-            F = self._Fconst if self.config.model == "constant" else self._F(fv[None])
+            F, vf = self._navigate_one(C, f.reshape(3), dt)
         else:
             self.C = self._earth_step(dt) @ self.C @ R
             fn = (self.C @ f[..., None])[..., 0]
             self.v = self.v + (fn + self.g_n) * dt
             self.t_int += dt
             F = self._F(fn)
+            vf = None
         self._propagate(F, dt)
-        self._measure(F, dt, (v0, v1, v2) if self.n == 1 else None)
+        self._measure(F, dt, vf)
+
+    def _navigate_one(self, C, f, dt: float):
+        """One run's attitude ``C`` (3, 3) after the sample taken, its velocity moved by the
+        sample's specific force ``f`` (3,) on floats (v + (C f + g) dt element by element, as
+        numpy computes it); returns (F, the velocity as three floats)."""
+        fv = np.dot(C, f)
+        self.C = C[None]
+        f0, f1, f2 = fv.tolist()
+        g0, g1, g2 = self._g_floats
+        (v0, v1, v2), = self.v.tolist()
+        v0 += (f0 + g0) * dt
+        v1 += (f1 + g1) * dt
+        v2 += (f2 + g2) * dt
+        self.v = np.array([[v0, v1, v2]])
+        self.t_int += dt
+        return (self._Fconst if self.config.model == "constant" else self._F(fv[None]),
+                (v0, v1, v2))
 
     def step_one(self, dt: float, w: np.ndarray, f: np.ndarray, dR=None) -> None:
         """:meth:`step` for one run (N = 1) and an ordinary sample (no gap, no hole): w, f
@@ -306,18 +314,7 @@ class AlignmentFilter(FastPath, Backtrack):
         E = self._cache.get(("E", dt))
         if E is None:
             E = self._earth_step(dt)
-        C = np.dot(np.dot(E, self.C[0]), dR)
-        fv = np.dot(C, f)
-        self.C = C[None]
-        f0, f1, f2 = fv.tolist()
-        g0, g1, g2 = self._g_floats
-        (v0, v1, v2), = self.v.tolist()
-        v0 += (f0 + g0) * dt
-        v1 += (f1 + g1) * dt
-        v2 += (f2 + g2) * dt
-        self.v = np.array([[v0, v1, v2]])
-        self.t_int += dt
-        F = self._Fconst if self.config.model == "constant" else self._F(fv[None])
+        F, vf = self._navigate_one(np.dot(np.dot(E, self.C[0]), dR), f, dt)
         hit = self._cache.get(("DT", dt)) if F.ndim == 2 else None
         P, S = self.P, self.S
         if hit is not None and len(P) == 1 and len(S) == 1:
@@ -331,7 +328,7 @@ class AlignmentFilter(FastPath, Backtrack):
             self._node = None
         else:
             self._propagate(F, dt)
-        self._measure(F, dt, (v0, v1, v2))
+        self._measure(F, dt, vf)
         if buffering and reached(self.t_int, self.config.backtrack_time, dt):
             self.backtrack()
 
