@@ -289,28 +289,33 @@ def _cfg(**kw):
                         specs=CONSUMER_MEMS, velocity_noise=0.05, **kw)
 
 
+def _fed_late(al, r, n, lag):
+    """``al`` fed live: samples one by one, every velocity measurement ``lag`` s after its
+    stamp (those of the first second at the start, so that it starts from the same
+    measurement as a run given them in time; those stamped up to the last sample after it)."""
+    early = r.gnss_t < 1.0
+    for tg, vg in zip(r.gnss_t[early], r.gnss_v[early]):
+        al.add_velocity(tg, vg)
+    queue = list(zip(r.gnss_t[~early] + lag, r.gnss_t[~early], r.gnss_v[~early]))
+    for k in range(n):
+        tk = r.t[k + 1]
+        while queue and queue[0][0] <= tk:
+            _, tg, vg = queue.pop(0)
+            assert al.add_velocity(tg, vg)
+        al.update(tk, r.gyro[k], r.accel[k])
+    for _, tg, vg in queue:
+        if tg <= r.t[n]:
+            assert al.add_velocity(tg, vg)
+    return al
+
+
 def test_late_measurements_equal_measurements_given_in_time():
     r, n = _short_run()
     a = MotionAligner(_cfg())
     for tg, vg in zip(r.gnss_t, r.gnss_v):
         a.add_velocity(tg, vg)
     a.update(r.t[1:n + 1], r.gyro[:n], r.accel[:n])
-    # live: every measurement arrives 0.12 s after its stamp, samples one by one (those of
-    # the first second are there at the start, so that both start from the same measurement)
-    b = MotionAligner(_cfg())
-    early = r.gnss_t < 1.0
-    for tg, vg in zip(r.gnss_t[early], r.gnss_v[early]):
-        b.add_velocity(tg, vg)
-    queue = list(zip(r.gnss_t[~early] + 0.12, r.gnss_t[~early], r.gnss_v[~early]))
-    for k in range(n):
-        tk = r.t[k + 1]
-        while queue and queue[0][0] <= tk:
-            _, tg, vg = queue.pop(0)
-            assert b.add_velocity(tg, vg)
-        b.update(tk, r.gyro[k], r.accel[k])
-    while queue and queue[0][1] <= r.t[n]:
-        _, tg, vg = queue.pop(0)
-        b.add_velocity(tg, vg)
+    b = _fed_late(MotionAligner(_cfg()), r, n, 0.12)
     assert b.events["rewinds"] > 100
     # runs of other lengths: equal to the closed form's approximations (1e-8 rad)
     assert np.abs(attitude_error(a.dcm, b.dcm)).max() < 1e-7
@@ -329,18 +334,7 @@ def test_a_ground_vehicle_counts_each_constraint_once_through_rewinds():
     for tg, vg in zip(r.gnss_t, r.gnss_v):
         a.add_velocity(tg, vg)
     a.update(r.t[1:n + 1], r.gyro[:n], r.accel[:n])
-    early = r.gnss_t < 1.0
-    for tg, vg in zip(r.gnss_t[early], r.gnss_v[early]):
-        b.add_velocity(tg, vg)
-    queue = list(zip(r.gnss_t[~early] + 0.25, r.gnss_t[~early], r.gnss_v[~early]))
-    for k in range(n):
-        while queue and queue[0][0] <= r.t[k + 1]:
-            _, tg, vg = queue.pop(0)
-            b.add_velocity(tg, vg)
-        b.update(r.t[k + 1], r.gyro[k], r.accel[k])
-    for _, tg, vg in queue:
-        if tg <= r.t[n]:
-            b.add_velocity(tg, vg)
+    _fed_late(b, r, n, 0.25)
     assert b.events["rewinds"] > 100
     assert a.events["nhc"] > 100 and b.events["nhc"] == a.events["nhc"]
     assert b.events["velocity"] == a.events["velocity"]

@@ -236,7 +236,8 @@ class Backtrack:
                 csum_p = running_sum(Yp - Ap @ coef)
                 m0 = interval_means(csum, t, dt, base)[0]
                 m1 = interval_means(csum_p, t, dt, base, pieces)[0]
-                if m1 is not None and m0 is not None and noise_power(m1) < noise_power(m0):
+                if m1 is not None and m0 is not None and (noise_variance(m1).sum()
+                                                           < noise_variance(m0).sum()):
                     csum = csum_p
                 else:
                     pieces = None
@@ -247,11 +248,7 @@ class Backtrack:
             if means is None:
                 break
             d = np.diff(means, axis=0)
-            # half the mean square difference (blind to a slow wander), but never below the
-            # variance of the means themselves: a sway that is not white (a slow tone) has
-            # differences smaller than its spread, and gating would then take every other
-            # interval for a shove
-            var = np.maximum(0.5 * np.mean(d ** 2, axis=0), np.mean(means ** 2, axis=0))
+            var = noise_variance(means, d)
             # differences of white means are MA(1): lag 1 -0.5, nothing beyond; a tone shows
             # at some lag up to 5 (0.2 Hz in 1 s means: lag 5), alternating means at lag 1 -1
             dd = np.maximum(np.sum(d * d, axis=0), 1e-300)
@@ -375,11 +372,13 @@ def interval_means(csum, t, dt, p: float, pieces=None):
     return means, edges, counts, n_int
 
 
-def noise_power(means: np.ndarray) -> float:
-    """The measurement noise the interval ``means`` (n, K) show, summed over the columns:
-    half their differences' mean square, or their own when larger (as the sway analysis)."""
-    d = np.diff(means, axis=0)
-    return float(np.maximum(0.5 * np.mean(d ** 2, axis=0), np.mean(means ** 2, axis=0)).sum())
+def noise_variance(means: np.ndarray, d: np.ndarray | None = None) -> np.ndarray:
+    """The measurement noise variance (K,) the interval ``means`` (n, K) show: half the
+    mean square of their differences ``d`` (blind to a slow wander), but never below the
+    means' own mean square: a sway that is not white (a slow tone) has differences smaller
+    than its spread, and gating would then take every other interval for a shove."""
+    d = np.diff(means, axis=0) if d is None else d
+    return np.maximum(0.5 * np.mean(d ** 2, axis=0), np.mean(means ** 2, axis=0))
 
 
 def level_steps(va: np.ndarray, gap: np.ndarray) -> np.ndarray:

@@ -231,16 +231,20 @@ class AlignmentFilter(FastPath, Backtrack):
             PhiT, Gdt = np.swapaxes(Phi, -1, -2), self.Gamma * dt
         P, S = self.P, self.S
         if len(P) == len(S) == 1 and Phi.ndim == Qd.ndim == 2:
-            # one covariance (one run, or a shared one): 2-D products, numpy's stacked ones
-            # cost more for a single matrix
-            P = np.dot(np.dot(Phi, P[0]), PhiT)
-            P += Qd
-            S = np.dot(Phi, S[0])
-            S += Gdt
-            self.P, self.S = P[None], S[None]
-        else:
-            self.P = Phi @ P @ PhiT + Qd
-            self.S = Phi @ S + Gdt
+            self._propagate_one(Phi, PhiT, Qd, Gdt)
+            return
+        self.P = Phi @ P @ PhiT + Qd
+        self.S = Phi @ S + Gdt
+        self._node = None
+
+    def _propagate_one(self, Phi, PhiT, Qd, Gdt) -> None:
+        """:meth:`_propagate` of one covariance (one run, or a shared one) with 2-D
+        matrices: 2-D products (numpy's stacked ones cost more for a single matrix)."""
+        P = np.dot(np.dot(Phi, self.P[0]), PhiT)
+        P += Qd
+        S = np.dot(Phi, self.S[0])
+        S += Gdt
+        self.P, self.S = P[None], S[None]
         self._node = None
 
     def _advance(self, dt, w, f, gap, dR=None, hole=(0.0, 0.0), bridge=None):
@@ -316,16 +320,8 @@ class AlignmentFilter(FastPath, Backtrack):
             E = self._earth_step(dt)
         F, vf = self._navigate_one(np.dot(np.dot(E, self.C[0]), dR), f, dt)
         hit = self._cache.get(("DT", dt)) if F.ndim == 2 else None
-        P, S = self.P, self.S
-        if hit is not None and len(P) == 1 and len(S) == 1:
-            # _propagate's one-covariance branch, its matrices cached (Phi, Qd 2-D)
-            Phi, PhiT, Qd, Gdt = hit
-            P = np.dot(np.dot(Phi, P[0]), PhiT)
-            P += Qd
-            S = np.dot(Phi, S[0])
-            S += Gdt
-            self.P, self.S = P[None], S[None]
-            self._node = None
+        if hit is not None and len(self.P) == 1 and len(self.S) == 1:
+            self._propagate_one(*hit)       # its matrices cached (Phi, Qd 2-D)
         else:
             self._propagate(F, dt)
         self._measure(F, dt, vf)

@@ -511,8 +511,7 @@ class UnitsMonitor:
         """One sample; returns exp(w dt), which the filter can reuse (None if skipped: a
         gap or a time jump, which also discards the window). A window closing here leaves
         its verdict for :meth:`take_verdict`."""
-        c, nom = self.al.config, self.al.nominal_dt     # self._gap(None), inline
-        if not (0.0 < dt <= c.max_gap and (nom is None or dt <= c.gap_ratio * nom)):
+        if not 0.0 < dt <= self._gap(None):
             self._start()
             return None
         w0, w1, w2 = w.tolist()
