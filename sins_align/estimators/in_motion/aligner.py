@@ -45,6 +45,8 @@ from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, Invaria
                                                     NoiseModel)
 from sins_align.estimators.in_motion.gaps import bridge_gaps
 from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
+from sins_align.estimators.in_motion.stillness import WINDOW as STILL_WINDOW
+from sins_align.estimators.in_motion.stillness import gyrocompass_limit, is_parked
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 
 __all__ = ["MotionAligner", "MOTION_REJECT_REASONS", "MOTION_STATES"]
@@ -70,8 +72,8 @@ HYPOTHESIS_SPREAD = 0.6
 #: s of history kept beyond max_measurement_lag (for the rewinds)
 _HISTORY_MARGIN = 0.2
 #: events of the updates a rewind re-applies: the snapshots keep their counts
-_REPLAYED_EVENTS = ("velocity", "velocity_inflated", "attitude", "nhc", "hypotheses_merged",
-                    "heading_acquired")
+_REPLAYED_EVENTS = ("velocity", "velocity_inflated", "velocity_parked", "attitude", "nhc",
+                    "hypotheses_merged", "heading_acquired")
 #: a heading guess with a std above this (deg) is no guess: the bank of hypotheses starts
 HYPOTHESIS_MAX_STD_DEG = 30.0
 #: hypotheses whose weight falls below this are dropped
@@ -668,8 +670,11 @@ class MotionAligner(EventSource, AttitudeReadout):
                 acc = ekf.C[b] @ f_now
                 acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
                 z = z + (t_now - ts) * acc
-            nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate)
+            parked = self._parked(t_now, payload)
+            nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate, consider_heading=parked)
             self.events["velocity"] += 1
+            if parked:
+                self.events["velocity_parked"] += 1
             if nis[self._best] > self.config.nis_inflate:
                 self.events["velocity_inflated"] += 1
             self._weigh(t_now, nis, ll, int(np.isfinite(payload[0]).sum()))
@@ -680,6 +685,24 @@ class MotionAligner(EventSource, AttitudeReadout):
             self._weigh(t_now, nis, ll, 3)
         if not self._replaying:
             self._evaluate(t_now)
+
+    def _parked(self, t_now, payload) -> bool:
+        """Is the heading a consider state of this velocity update? While the vehicle stands
+        (:func:`~sins_align.estimators.in_motion.stillness.is_parked`) and its gyro cannot
+        gyrocompass to the aligned criterion (the best filter's east gyro-bias std over the
+        Earth rate's horizontal component, :func:`~sins_align.estimators.in_motion.stillness.
+        gyrocompass_limit`, above ``aligned_heading_std_deg``): see
+        :mod:`~sins_align.estimators.in_motion.stillness`."""
+        ekf, b = self.ekf, self._best
+        east = ekf.C[b, 0]                      # the east axis in body axes (C^T e_E)
+        sigma_e = math.sqrt(max(float(east @ ekf.P[b][IBG, IBG] @ east), 0.0))
+        lat = float(ekf.lat[b])
+        if gyrocompass_limit(sigma_e, lat) <= self.config.aligned_heading_std_deg * DEG:
+            return False
+        t, w, f = self._vjitter.before(t_now, STILL_WINDOW)
+        return is_parked(payload[0], payload[1], t, w, f, self.config.specs,
+                         float(normal_gravity(lat, float(ekf.h[b]))),
+                         self.nominal_dt or 0.01)
 
     def _weigh(self, t, nis, loglik, dof):
         """After an update: the hypotheses' weights, pruning, collapse; the NIS record."""
