@@ -46,7 +46,8 @@ from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, Invaria
 from sins_align.estimators.in_motion.gaps import bridge_gaps
 from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
 from sins_align.estimators.in_motion.stillness import WINDOW as STILL_WINDOW
-from sins_align.estimators.in_motion.stillness import gyrocompass_limit, is_parked
+from sins_align.estimators.in_motion.stillness import (gyrocompass_limit, is_parked,
+                                                      reference_still)
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 
 __all__ = ["MotionAligner", "MOTION_REJECT_REASONS", "MOTION_STATES"]
@@ -693,6 +694,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         Earth rate's horizontal component, :func:`~sins_align.estimators.in_motion.stillness.
         gyrocompass_limit`, above ``aligned_heading_std_deg``): see
         :mod:`~sins_align.estimators.in_motion.stillness`."""
+        if not reference_still(*payload):             # (the cheapest test first)
+            return False
         ekf, b = self.ekf, self._best
         east = ekf.C[b, 0]                      # the east axis in body axes (C^T e_E)
         sigma_e = math.sqrt(max(float(east @ ekf.P[b][IBG, IBG] @ east), 0.0))

@@ -34,7 +34,7 @@ import numpy as np
 
 from sins_align.core.earth import OMEGA_IE
 
-__all__ = ["WINDOW", "gyrocompass_limit", "is_parked"]
+__all__ = ["WINDOW", "gyrocompass_limit", "is_parked", "reference_still"]
 
 #: s of IMU samples the detector looks at, before the velocity update's sample
 WINDOW = 1.0
@@ -56,18 +56,24 @@ def _variance_bound(var: float, n: int) -> float:
     return var * (1.0 + 5.0 * math.sqrt(2.0 / (n - 1)))
 
 
+def reference_still(z, R) -> bool:
+    """The velocity reference ``z`` (3,) m/s (NaN: not measured) within three of its sigmas
+    (covariance ``R``) of zero on every measured axis (and some axis measured)."""
+    z = np.asarray(z, dtype=float)
+    ok = np.isfinite(z)
+    if not ok.any():
+        return False
+    sd = np.sqrt(np.diag(np.asarray(R, dtype=float)))
+    return bool(np.all(np.abs(z[ok]) <= 3.0 * sd[ok]))
+
+
 def is_parked(z, R, t, w, f, specs, gravity: float, nominal_dt: float) -> bool:
     """The detector (see the module): velocity reference ``z`` (3,) m/s ENU (NaN: not
     measured) of covariance ``R`` (3, 3); the IMU samples of the last :data:`WINDOW` s before
     it, stamps ``t`` (m,), rates ``w`` and specific forces ``f`` (m, 3); ``specs`` the IMU's
     :class:`~sins_align.core.specs.SensorSpecs`; ``gravity`` m/s^2 there; ``nominal_dt`` s,
     the sample interval."""
-    z = np.asarray(z, dtype=float)
-    ok = np.isfinite(z)
-    if not ok.any():
-        return False
-    sd = np.sqrt(np.diag(np.asarray(R, dtype=float)))
-    if not bool(np.all(np.abs(z[ok]) <= 3.0 * sd[ok])):
+    if not reference_still(z, R):
         return False
     n = len(t)
     if n < _MIN_SAMPLES or float(t[-1] - t[0]) < 0.8 * WINDOW:
