@@ -698,7 +698,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             return False
         ekf, b = self.ekf, self._best
         east = ekf.C[b, 0]                      # the east axis in body axes (C^T e_E)
-        sigma_e = math.sqrt(max(float(east @ ekf.P[b][IBG, IBG] @ east), 0.0))
+        sigma_e = math.sqrt(max(float(east @ ekf.P[b, IBG, IBG] @ east), 0.0))
         lat = float(ekf.lat[b])
         if gyrocompass_limit(sigma_e, lat) <= self.config.aligned_heading_std_deg * DEG:
             return False

@@ -59,12 +59,15 @@ def _variance_bound(var: float, n: int) -> float:
 def reference_still(z, R) -> bool:
     """The velocity reference ``z`` (3,) m/s (NaN: not measured) within three of its sigmas
     (covariance ``R``) of zero on every measured axis (and some axis measured)."""
-    z = np.asarray(z, dtype=float)
-    ok = np.isfinite(z)
-    if not ok.any():
-        return False
-    sd = np.sqrt(np.diag(np.asarray(R, dtype=float)))
-    return bool(np.all(np.abs(z[ok]) <= 3.0 * sd[ok]))
+    z = np.asarray(z, dtype=float).tolist()
+    R = np.asarray(R, dtype=float)
+    seen = False
+    for i in range(3):
+        if math.isfinite(z[i]):              # (NaN: not measured)
+            if z[i] * z[i] > 9.0 * float(R[i, i]):
+                return False
+            seen = True
+    return seen
 
 
 def is_parked(z, R, t, w, f, specs, gravity: float, nominal_dt: float) -> bool:
@@ -79,16 +82,20 @@ def is_parked(z, R, t, w, f, specs, gravity: float, nominal_dt: float) -> bool:
     if n < _MIN_SAMPLES or float(t[-1] - t[0]) < 0.8 * WINDOW:
         return False
     T = float(t[-1] - t[0]) + nominal_dt
-    var_w = specs.gyro_arw ** 2 / nominal_dt           # white noise of one sample
-    var_f = specs.accel_vrw ** 2 / nominal_dt
-    if (float(w.var(axis=0).max()) > _variance_bound(var_w, n)
-            or float(f.var(axis=0).max()) > _variance_bound(var_f, n)):
+    x = np.hstack((w, f))                               # (one pass for both sensors)
+    mean = x.mean(axis=0)
+    d = x - mean
+    var = (np.einsum("ij,ij->j", d, d) / n).tolist()
+    m = mean.tolist()
+    # white noise of one sample, and its sample variance's upper bound
+    if (max(var[:3]) > _variance_bound(specs.gyro_arw ** 2 / nominal_dt, n)
+            or max(var[3:]) > _variance_bound(specs.accel_vrw ** 2 / nominal_dt, n)):
         return False
     # the means: Earth rate (<= Omega per axis) and bias, gravity and bias, three sigmas
     # each of the bias (per axis, or the norm's for the force) and of the noise's mean
-    if float(np.abs(w.mean(axis=0)).max()) > (OMEGA_IE + 3.0 * specs.gyro_bias
-                                               + 3.0 * specs.gyro_arw / math.sqrt(T)):
+    if max(abs(v) for v in m[:3]) > (OMEGA_IE + 3.0 * specs.gyro_bias
+                                     + 3.0 * specs.gyro_arw / math.sqrt(T)):
         return False
-    fm = float(np.linalg.norm(f.mean(axis=0)))
-    return abs(fm - gravity) <= 3.0 * math.sqrt(3.0) * specs.accel_bias + \
-        3.0 * specs.accel_vrw / math.sqrt(T)
+    fm = math.sqrt(m[3] * m[3] + m[4] * m[4] + m[5] * m[5])
+    return abs(fm - gravity) <= (3.0 * math.sqrt(3.0) * specs.accel_bias
+                                 + 3.0 * specs.accel_vrw / math.sqrt(T))
