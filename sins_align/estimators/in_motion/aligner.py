@@ -74,7 +74,7 @@ HYPOTHESIS_SPREAD = 0.6
 _HISTORY_MARGIN = 0.2
 #: events of the updates a rewind re-applies: the snapshots keep their counts
 _REPLAYED_EVENTS = ("velocity", "velocity_inflated", "velocity_parked", "attitude", "nhc",
-                    "hypotheses_merged", "heading_acquired")
+                    "nhc_parked", "hypotheses_merged", "heading_acquired")
 #: a heading guess with a std above this (deg) is no guess: the bank of hypotheses starts
 HYPOTHESIS_MAX_STD_DEG = 30.0
 #: hypotheses whose weight falls below this are dropped
@@ -639,10 +639,14 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self._apply(item, t_now)
                 self._applied.append(item)
             if self._next_nhc is not None and self._next_nhc <= t_now:
+                parked = self._parked_at_nhc(t_now)
                 self._weigh(t_now, *self.ekf.update_lateral(
                     c.nhc_axis, c.nhc_noise, c.nis_inflate, slip=c.nhc_slip_deg * DEG,
-                    slip_updates=max(1.0, c.nhc_slip_time / c.nhc_period)), 1)
+                    slip_updates=max(1.0, c.nhc_slip_time / c.nhc_period),
+                    consider_heading=parked), 1)
                 self.events["nhc"] += 1
+                if parked:
+                    self.events["nhc_parked"] += 1
                 self._next_nhc = t_now + c.nhc_period
             if e < n:
                 self._snapshot(t_now)
@@ -706,6 +710,15 @@ class MotionAligner(EventSource, AttitudeReadout):
         return is_parked(payload[0], payload[1], t, w, f, self.config.specs,
                          float(normal_gravity(lat, float(ekf.h[b]))),
                          self.nominal_dt or 0.01)
+
+    def _parked_at_nhc(self, t_now) -> bool:
+        """:meth:`_parked` for a non-holonomic update at t_now: standing, the constraint's
+        heading regressor (the estimated body velocity) is noise too. The velocity tested
+        is the best filter's estimate with its own covariance (what the references applied
+        so far say, whatever their rate and the order they came in)."""
+        ekf, b = self.ekf, self._best
+        C = ekf.C[b]
+        return self._parked(t_now, (ekf.v[b], C @ ekf.P[b, INU, INU] @ C.T))
 
     def _weigh(self, t, nis, loglik, dof):
         """After an update: the hypotheses' weights, pruning, collapse; the NIS record."""

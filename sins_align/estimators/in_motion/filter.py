@@ -843,7 +843,7 @@ class InvariantEKF:
         return self._apply((z - z_hat)[:, ok], H[:, ok], Rk, nis_limit, consider_heading)
 
     def update_lateral(self, axis: int, sigma: float, nis_limit=None, slip: float = 0.0,
-                       slip_updates: float = 1.0):
+                       slip_updates: float = 1.0, consider_heading=False):
         """Non-holonomic constraint: the body velocity along ``axis`` of the point at
         ``nhc_lever`` (body axes, from the IMU: a car's rear-axle centre) is zero (+- sigma).
         That velocity is ``C^T v + w_nb x l``, the rate term as the antenna's of
@@ -853,7 +853,8 @@ class InvariantEKF:
         (a bound). In a turn the lateral velocity is not zero but about ``slip a_lat u`` (u
         the forward speed), for the whole turn: the noise gets that, times the square root of
         ``slip_updates`` (how many updates it lasts), so that the updates of one turn together
-        claim no more than one. Each filter of the bank takes its own speed and rate."""
+        claim no more than one. Each filter of the bank takes its own speed and rate.
+        ``consider_heading``: as :meth:`update_velocity`'s (a parked vehicle)."""
         C = self.C
         vb = np.einsum("kji,kj->ki", C, self.v)
         H = np.zeros((self.K, 1, self.n))
@@ -876,7 +877,7 @@ class InvariantEKF:
                 H[:, 0, self.i_nhl] = -_skew(w_nb)[:, axis, :]
             if self.i_sf is not None:
                 H[:, 0, self.i_sf] = (-_skew(lever) * self.w_last[:, None, :])[:, axis, :]
-        return self._apply(-vb[:, axis:axis + 1], H, R, nis_limit)
+        return self._apply(-vb[:, axis:axis + 1], H, R, nis_limit, consider_heading)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
         """Attitude of a master INS: ``C_ref = C exp(-mu x) exp(n x)``, with ``mu`` the
