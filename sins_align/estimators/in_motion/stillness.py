@@ -11,9 +11,10 @@ against the east gyro bias, which limits the heading std to ``sigma_bE / (Omega 
 (:func:`gyrocompass_limit`). When that limit is above the aligned criterion (a MEMS gyro of
 10 deg/h: 54 deg at 45 deg of latitude; a tactical one of 1 deg/h: 5.4 deg; a navigation-grade
 one of 0.01 deg/h: 0.05 deg), standing still cannot align the heading, and the aligner makes
-the heading a consider state of its velocity updates (``InvariantEKF.update_velocity(...,
-consider_heading=True)``): the heading variance cannot shrink through them. A navigation-grade
-IMU keeps gyrocompassing.
+the heading a consider state of its velocity and non-holonomic updates
+(``InvariantEKF.update_velocity(..., consider_heading=True)``, ``update_lateral``): the
+heading variance cannot shrink through them (nor, measured, through the propagation: every
+interval of a 300 s standing bank grew it). A navigation-grade IMU keeps gyrocompassing.
 
 :func:`is_parked` is the detector: the velocity reference within three of its own sigmas of
 zero on every measured axis, and the IMU's samples over the last :data:`WINDOW` s what noise
