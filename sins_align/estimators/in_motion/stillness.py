@@ -22,8 +22,10 @@ at rest gives: per axis, the sample variance of the rates and of the specific fo
 the upper bound of white noise of the specs' density (five sigmas of the sample variance's
 spread), the mean rate within the Earth rate plus three sigmas of the bias and of the noise's
 mean, the mean specific force's magnitude within gravity plus the same for the
-accelerometer. A vehicle that moves fails one of them (a constant velocity the reference,
-any acceleration or rotation the IMU); a false "parked" costs only the heading information
+accelerometer. A vehicle that moves fails one of them (a constant velocity the reference; a
+rotation, a vertical or a changing acceleration the IMU; a steady horizontal acceleration
+leaves ``|f|`` at g to first order, and the reference sees the speed it builds within a
+second or two); a false "parked" costs only the heading information
 of those updates (the update is still a valid, suboptimal one), a missed one leaves the
 filter as it was without the detector (an engine's vibration fails the variance test).
 """
@@ -88,15 +90,20 @@ def is_parked(z, R, t, w, f, specs, gravity: float, nominal_dt: float) -> bool:
     d = x - mean
     var = (np.einsum("ij,ij->j", d, d) / n).tolist()
     m = mean.tolist()
-    # white noise of one sample, and its sample variance's upper bound
-    if (max(var[:3]) > _variance_bound(specs.gyro_arw ** 2 / nominal_dt, n)
-            or max(var[3:]) > _variance_bound(specs.accel_vrw ** 2 / nominal_dt, n)):
+    # white noise of one sample (and the increments' quantisation, uniform), and its
+    # sample variance's upper bound
+    qw = specs.gyro_quantization / nominal_dt
+    qf = specs.accel_quantization / nominal_dt
+    if (max(var[:3]) > _variance_bound(specs.gyro_arw ** 2 / nominal_dt + qw * qw / 12.0, n)
+            or max(var[3:]) > _variance_bound(specs.accel_vrw ** 2 / nominal_dt
+                                              + qf * qf / 12.0, n)):
         return False
     # the means: Earth rate (<= Omega per axis) and bias, gravity and bias, three sigmas
-    # each of the bias (per axis, or the norm's for the force) and of the noise's mean
-    if max(abs(v) for v in m[:3]) > (OMEGA_IE + 3.0 * specs.gyro_bias
-                                     + 3.0 * specs.gyro_arw / math.sqrt(T)):
+    # each of the bias with its wander (per axis, or the norm's for the force) and of the
+    # noise's mean
+    bg = math.hypot(specs.gyro_bias, specs.gyro_bias_instability)
+    ba = math.hypot(specs.accel_bias, specs.accel_bias_instability)
+    if max(abs(v) for v in m[:3]) > OMEGA_IE + 3.0 * bg + 3.0 * specs.gyro_arw / math.sqrt(T):
         return False
     fm = math.sqrt(m[3] * m[3] + m[4] * m[4] + m[5] * m[5])
-    return abs(fm - gravity) <= (3.0 * math.sqrt(3.0) * specs.accel_bias
-                                 + 3.0 * specs.accel_vrw / math.sqrt(T))
+    return abs(fm - gravity) <= 3.0 * math.sqrt(3.0) * ba + 3.0 * specs.accel_vrw / math.sqrt(T)
