@@ -128,6 +128,14 @@ def test_parked_navigation_grade_keeps_gyrocompassing():
     assert np.all(sd < 0.1 * DEG) and np.all(np.abs(e) < 3.0 * sd)
 
 
+def test_parked_tactical_gyrocompasses_down_to_its_limit():
+    """A 1 deg/h gyro (gyrocompass limit 5.4 deg at 45 deg of latitude) learns its heading
+    standing from the 10 deg guess down to about that limit, then holds it (considered)."""
+    e, sd, parked = _parked_bank(grade_specs("tactical"), 2, 300.0, 0.05)
+    assert np.all(sd < 0.6 * 10.0 * DEG) and np.all(np.abs(e) < 3.0 * sd)
+    assert parked.max() > 0.0
+
+
 def test_parked_ground_vehicle_heading_std_does_not_shrink():
     """With the non-holonomic constraint (a parked car): its heading regressor, the estimated
     body velocity, is noise too, and it is a consider update as well (without that, the

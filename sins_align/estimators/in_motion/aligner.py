@@ -693,23 +693,28 @@ class MotionAligner(EventSource, AttitudeReadout):
 
     def _parked(self, t_now, payload) -> bool:
         """Is the heading a consider state of this velocity update? While the vehicle stands
-        (:func:`~sins_align.estimators.in_motion.stillness.is_parked`) and its gyro cannot
-        gyrocompass to the aligned criterion (the best filter's east gyro-bias std over the
-        Earth rate's horizontal component, :func:`~sins_align.estimators.in_motion.stillness.
-        gyrocompass_limit`, above ``aligned_heading_std_deg``): see
-        :mod:`~sins_align.estimators.in_motion.stillness`."""
+        (:func:`~sins_align.estimators.in_motion.stillness.is_parked`) and gyrocompassing
+        cannot improve on the heading the best filter holds (its heading std at or below
+        :meth:`_compass_limit`): see :mod:`~sins_align.estimators.in_motion.stillness`."""
         if not reference_still(*payload):             # (the cheapest test first)
             return False
         ekf, b = self.ekf, self._best
-        east = ekf.C[b, 0]                      # the east axis in body axes (C^T e_E)
-        sigma_e = math.sqrt(max(float(east @ ekf.P[b, IBG, IBG] @ east), 0.0))
+        up = ekf.C[b, 2]                        # the up axis in body axes
+        heading_var = float(up @ ekf.P[b, IPHI, IPHI] @ up)
         lat = float(ekf.lat[b])
-        if gyrocompass_limit(sigma_e, lat) <= self.config.aligned_heading_std_deg * DEG:
+        if self._compass_limit(lat) ** 2 < heading_var:
             return False
         t, w, f = self._vjitter.before(t_now, STILL_WINDOW)
         return is_parked(payload[0], payload[1], t, w, f, self.config.specs,
                          float(normal_gravity(lat, float(ekf.h[b]))),
                          self.nominal_dt or 0.01)
+
+    def _compass_limit(self, lat: float) -> float:
+        """rad: the heading std gyrocompassing can reach standing (the specs' gyro bias, its
+        wander included, over the Earth rate's horizontal component; not the filter's own
+        bias std, which standing still only learns together with the heading)."""
+        s = self.config.specs
+        return gyrocompass_limit(math.hypot(s.gyro_bias, s.gyro_bias_instability), lat)
 
     def _parked_at_nhc(self, t_now) -> bool:
         """:meth:`_parked` for a non-holonomic update at t_now: standing, the constraint's

@@ -8,10 +8,14 @@ while the error stayed ~11 deg ((e/sigma)^2 6.6 over 40 runs,
 ``test/test_in_motion_static_heading.py``). What a standing IMU really knows of its heading
 comes from gyrocompassing alone: the Earth rate's horizontal component ``Omega cos(lat)``
 against the east gyro bias, which limits the heading std to ``sigma_bE / (Omega cos(lat))``
-(:func:`gyrocompass_limit`). When that limit is above the aligned criterion (a MEMS gyro of
-10 deg/h: 54 deg at 45 deg of latitude; a tactical one of 1 deg/h: 5.4 deg; a navigation-grade
-one of 0.01 deg/h: 0.05 deg), standing still cannot align the heading, and the aligner makes
-the heading a consider state of its velocity and non-holonomic updates
+(:func:`gyrocompass_limit`; the specs' gyro bias: standing still, the filter learns its own
+east bias only together with the heading). When the filter's heading std is at or below that
+limit (a MEMS gyro of 10 deg/h: 54 deg at 45 deg of latitude, above the heading std any
+filter of the bank starts with; a tactical one of 1 deg/h: 5.4 deg, which it gyrocompasses
+down to first; a navigation-grade one of 0.01 deg/h: 0.05 deg, below the 0.08 deg it
+gyrocompasses to in 300 s, so it keeps gyrocompassing), an update cannot hold more heading
+information standing, and what it would give is the noise's; so the aligner makes the heading
+a consider state of its velocity and non-holonomic updates
 (``InvariantEKF.update_velocity(..., consider_heading=True)``, ``update_lateral``): the
 heading variance cannot shrink through them (nor, measured, through the propagation: every
 interval of a 300 s standing bank grew it). A navigation-grade IMU keeps gyrocompassing.
