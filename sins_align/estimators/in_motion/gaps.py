@@ -69,7 +69,8 @@ FILL_WINDOW = 0.25
 FILL_REACH = 3.0
 #: one lost sample is predicted from this many samples before it (and the one after it)
 PREDICT_LAGS = 6
-#: s of held samples the predictor of a lost sample is fitted on (at least 4 x its rows)
+#: s of held samples the predictor of a lost sample is fitted on (within what the aligner
+#: holds for a rewind; an IMU slower than ~32 Hz has too few rows in it: the mean)
 PREDICT_FIT = 1.0
 
 
@@ -125,7 +126,7 @@ def bridge_gaps(prev: float, t, w, f, dt_nominal: float, before) -> Bridges:
         vw.append(np.full(3, (g * dt_nominal * sw + (g * (w[i] - mw)) ** 2).max()))
         vf.append(np.full(3, (g * dt_nominal * sf + (g * (f[i] - mf)) ** 2).max()))
         if g <= GAP_RATIO * dt_nominal:     # one sample lost: predicted, if it can be
-            th, wh, fh = before(t_prev, max(PREDICT_FIT, 4.0 * (PREDICT_LAGS + 2) * dt_nominal))
+            th, wh, fh = before(t_prev, PREDICT_FIT)
             pw = _predicted(th, wh, w[i], dt_nominal)
             pf = _predicted(th, fh, f[i], dt_nominal)
             if pw is not None and pf is not None:
