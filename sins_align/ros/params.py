@@ -205,6 +205,9 @@ PARAMS: tuple[ParamSpec, ...] = (
               "frame.", rule=_check_lever_arm),
     ParamSpec("nhc_lever_arm_std", 2.0, "vehicle ground: 1-sigma of nhc_lever_arm per axis, "
               "m; > 0 estimates it in turns (0: taken as exact).", 0.0, 100.0),
+    ParamSpec("nhc_mount_std", 2.0, "vehicle ground: 1-sigma of the rotation between the "
+              "IMU's axes and the vehicle's, deg (an IMU bolted a little askew); > 0 estimates "
+              "it (0: the IMU's lateral_axis is the vehicle's side exactly).", 0.0, 45.0),
     ParamSpec("nhc_slip_deg", 1.0, "vehicle ground: tyre sideslip bound, deg per m/s^2 of "
               "lateral acceleration (the constraint's noise grows in turns to cover it; 0: "
               "none).", 0.0, 10.0),
@@ -466,6 +469,7 @@ def motion_config_from_params(values: dict[str, Any]):
         nhc_axis=int(m["lateral_axis"]),
         nhc_lever_arm=tuple(float(x) for x in m["nhc_lever_arm"]),
         nhc_lever_arm_std=float(m["nhc_lever_arm_std"]),
+        nhc_mount_std_deg=float(m["nhc_mount_std"]),
         nhc_slip_deg=float(m["nhc_slip_deg"]),
         attitude_matching=bool(m["attitude_matching"]),
         initial_rpy_deg=_initial_rpy(m),

@@ -926,6 +926,7 @@ class ReplaySession:
             if al.config.vehicle == "ground":
                 out["final"]["nhc_lever_arm_m"] = np.asarray(al.nhc_lever_arm,
                                                              dtype=float).tolist()
+                out["final"]["nhc_mount_deg"] = np.degrees(al.nhc_mount).tolist()
         if self.truth is not None:
             fin = out["final"]
             fin["error_enu_deg"] = None if self.final_error is None else self.final_error.tolist()
@@ -1111,6 +1112,7 @@ def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
         if config.vehicle == "ground":
             out.update(nhc_lever_arm_m=list(config.nhc_lever_arm),
                        nhc_lever_arm_std_m=config.nhc_lever_arm_std,
+                       nhc_mount_std_deg=config.nhc_mount_std_deg,
                        nhc_slip_deg=config.nhc_slip_deg)
     return out
 

@@ -221,6 +221,13 @@ class MotionAligner(EventSource, AttitudeReadout):
                 else self.ekf.corrected(self._best)[6])
 
     @property
+    def nhc_mount(self) -> np.ndarray:
+        """rad, rotation vector in IMU axes: the estimated rotation of the vehicle's axes
+        against the IMU's (the vehicle's side is ``exp(eps x) e_nhc_axis``; zeros when not
+        estimated, ``nhc_mount_std_deg`` 0)."""
+        return np.zeros(3) if self.ekf is None else self.ekf.corrected(self._best)[7]
+
+    @property
     def nis(self) -> float:
         """Mean NIS per degree of freedom over the last ``aligned_nis_window`` s (nan: none)."""
         if not self._nis:
@@ -416,7 +423,9 @@ class MotionAligner(EventSource, AttitudeReadout):
                                       ("gyro_scale", c.gyro_scale_std > 0),
                                       ("accel_scale", c.accel_scale_std > 0),
                                       ("nhc_lever", c.vehicle == "ground"
-                                       and c.nhc_lever_arm_std > 0))
+                                       and c.nhc_lever_arm_std > 0),
+                                      ("nhc_mount", c.vehicle == "ground"
+                                       and c.nhc_mount_std_deg > 0))
                       if on)
         n = 12 + 3 * len(extra)
         P = np.zeros((K, n, n))
@@ -432,7 +441,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         for x in extra:
             std = {"lever": c.lever_arm_std, "mount": c.mounting_std_deg * DEG,
                    "gyro_scale": c.gyro_scale_std, "accel_scale": c.accel_scale_std,
-                   "nhc_lever": c.nhc_lever_arm_std}[x]
+                   "nhc_lever": c.nhc_lever_arm_std, "nhc_mount": c.nhc_mount_std_deg * DEG}[x]
             P[:, i:i + 3, i:i + 3] = np.eye(3) * std ** 2
             i += 3
         lat, lon, h = self.position
@@ -803,6 +812,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             "bias_accel_mg": (self.bias_accel / 9.80665e-3).tolist() if ok else None,
             "lever_arm_m": self.lever_arm.tolist(),
             "nhc_lever_arm_m": self.nhc_lever_arm.tolist(),
+            "nhc_mount_deg": (self.nhc_mount / DEG).tolist(),
             "mounting_deg": (self.ekf.corrected(self._best)[5] / DEG).tolist() if ok else None,
             "feedback": self.config.feedback,
             "gyro_scale_ppm": (self.ekf.sf[self._best] * 1e6).tolist() if ok else None,

@@ -60,6 +60,13 @@ class MotionConfig:
         states, observable in turns; in straight driving it does not matter). The default
         2 m covers an IMU anywhere in a car with the default (0, 0, 0); 0 takes
         ``nhc_lever_arm`` as exact.
+    nhc_mount_std_deg : deg — 1-sigma of the rotation between the IMU's axes and the
+        vehicle's (an IMU bolted a little askew: a 2 deg yaw puts 0.35 m/s of a 10 m/s
+        forward speed on the IMU's side axis, which the constraint would otherwise read as
+        a heading error of 2 deg with a std of a few hundredths); > 0 estimates it (3 more
+        states: the heading from the constraint alone is then no better than this, and the
+        turns and accelerations, which the velocity reference sees, tell the two apart);
+        0 takes the IMU's ``nhc_axis`` as the vehicle's side exactly.
     initial_rpy_deg : REP-103 roll, pitch, yaw guess, or None. Roll and pitch are always
         taken from the accelerometers at the start (any start converges, upside down too);
         the yaw is the heading guess.
@@ -110,6 +117,7 @@ class MotionConfig:
     nhc_period: float = 0.1
     nhc_lever_arm: tuple = (0.0, 0.0, 0.0)
     nhc_lever_arm_std: float = 2.0
+    nhc_mount_std_deg: float = 2.0
     nhc_slip_deg: float = 1.0
     nhc_slip_time: float = 3.0
     initial_rpy_deg: tuple | None = None
@@ -172,15 +180,17 @@ class MotionConfig:
                 raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
         for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m",
                      "mounting_std_deg", "gyro_scale_std", "accel_scale_std",
-                     "nhc_lever_arm_std", "nhc_slip_deg", "nhc_slip_time",
+                     "nhc_lever_arm_std", "nhc_mount_std_deg", "nhc_slip_deg", "nhc_slip_time",
                      "velocity_averaging"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x)):
                 raise ValueError(f"{name} must be finite, got {x!r}")
         if min(self.lever_arm_std, self.max_measurement_lag, self.mounting_std_deg,
                self.gyro_scale_std, self.accel_scale_std, self.nhc_lever_arm_std,
+               self.nhc_mount_std_deg,
                self.nhc_slip_deg, self.nhc_slip_time) < 0:
-            raise ValueError("lever_arm_std, nhc_lever_arm_std, nhc_slip_deg, nhc_slip_time, "
+            raise ValueError("lever_arm_std, nhc_lever_arm_std, nhc_mount_std_deg, nhc_slip_deg, "
+                             "nhc_slip_time, "
                              "max_measurement_lag, mounting_std_deg and the scale-factor stds "
                              "must be >= 0")
         if not 0.0 <= self.velocity_averaging <= 1.0:
