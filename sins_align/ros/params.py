@@ -178,6 +178,9 @@ PARAMS: tuple[ParamSpec, ...] = (
               "frame: enu or ned (never guessed from frame_id).", choices=VELOCITY_FRAMES),
     ParamSpec("lever_arm", [0.0, 0.0, 0.0], "Lever arm from the IMU to the GNSS antenna (or "
               "master INS), m, in the IMU frame.", rule=_check_lever_arm),
+    ParamSpec("lever_arm_std", 1.0, "1-sigma of lever_arm per axis, m; > 0 estimates it (an "
+              "antenna a metre or two from an IMU told [0, 0, 0] put most instants beyond 3 "
+              "sigma in turns); 0 takes lever_arm as exact.", 0.0, 100.0),
     ParamSpec("velocity_noise", 0.1, "Velocity reference noise 1-sigma, m/s, for messages "
               "without a covariance.", 1e-4, 100.0),
     ParamSpec("velocity_averaging", -1.0, "Interval over which the velocity reference is "
@@ -462,6 +465,7 @@ def motion_config_from_params(values: dict[str, Any]):
         latitude_deg=float(m["latitude"]), longitude_deg=float(m["longitude"]),
         height_m=float(m["height"]), specs=sensor_specs(m),
         lever_arm=tuple(float(x) for x in m["lever_arm"]),
+        lever_arm_std=float(m["lever_arm_std"]),
         velocity_noise=float(m["velocity_noise"]),
         velocity_averaging=velocity_averaging(m),
         gyro_scale_std=gyro_sf, accel_scale_std=accel_sf,

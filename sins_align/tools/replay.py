@@ -1106,7 +1106,8 @@ def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
     }
     if not quasi_static:
         out.update(estimator="in_motion", longitude_deg=config.longitude_deg,
-                   lever_arm_m=list(config.lever_arm), velocity_noise_mps=config.velocity_noise,
+                   lever_arm_m=list(config.lever_arm), lever_arm_std_m=config.lever_arm_std,
+                   velocity_noise_mps=config.velocity_noise,
                    max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle,
                    velocity_averaging_s=config.velocity_averaging)
         if config.vehicle == "ground":
