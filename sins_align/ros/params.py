@@ -183,6 +183,12 @@ PARAMS: tuple[ParamSpec, ...] = (
               "sigma in turns); 0 takes lever_arm as exact.", 0.0, 100.0),
     ParamSpec("velocity_noise", 0.1, "Velocity reference noise 1-sigma, m/s, for messages "
               "without a covariance.", 1e-4, 100.0),
+    ParamSpec("velocity_latency", 0.0, "How much later than the instant it measured the "
+              "velocity reference is stamped, s (a driver that stamps at reception).", -1.0,
+              1.0),
+    ParamSpec("velocity_latency_std", 0.1, "1-sigma of velocity_latency, s; > 0 estimates it "
+              "while the vehicle accelerates (50 ms unaccounted for put a third of a city "
+              "drive beyond 3 sigma); 0 takes it as exact.", 0.0, 1.0),
     ParamSpec("velocity_averaging", -1.0, "Interval over which the velocity reference is "
               "compared with the IMU velocity less its vibration jitter, s: the interval "
               "between velocity messages (0.1 at 10 Hz); 0 compares with the IMU velocity at "
@@ -467,6 +473,8 @@ def motion_config_from_params(values: dict[str, Any]):
         lever_arm=tuple(float(x) for x in m["lever_arm"]),
         lever_arm_std=float(m["lever_arm_std"]),
         velocity_noise=float(m["velocity_noise"]),
+        velocity_latency=float(m["velocity_latency"]),
+        velocity_latency_std=float(m["velocity_latency_std"]),
         velocity_averaging=velocity_averaging(m),
         gyro_scale_std=gyro_sf, accel_scale_std=accel_sf,
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],

@@ -32,6 +32,13 @@ class MotionConfig:
     lever_arm : (3,) m, IMU frame — from the IMU to the antenna of the velocity reference.
     lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (15 states).
     velocity_noise : m/s — 1-sigma of a velocity measurement that comes without covariance.
+    velocity_latency : s — how much later than the instant it measured the velocity
+        reference is stamped (a driver that stamps at reception: tens to a couple of hundred
+        ms); the filter compares it with its velocity that long before its stamp.
+    velocity_latency_std : s — its 1-sigma; > 0 estimates it (1 more state, seen while the
+        vehicle accelerates: a 2 m/s^2 acceleration and 0.1 s of latency make 0.2 m/s). 0
+        takes ``velocity_latency`` as exact (stamped at 50 ms after the fact and taken as
+        exact, a city drive's attitude was beyond 3 sigma a third of the time).
     velocity_averaging : s — the reference is compared with the IMU velocity less its jitter
         over this interval before the measurement's sample (the velocity less its
         least-squares straight line over it:
@@ -109,6 +116,8 @@ class MotionConfig:
     lever_arm: tuple = (0.0, 0.0, 0.0)
     lever_arm_std: float = 0.0
     velocity_noise: float = 0.1
+    velocity_latency: float = 0.0
+    velocity_latency_std: float = 0.0
     velocity_averaging: float = 0.1
     max_measurement_lag: float = 0.5
     vehicle: str = "air"
@@ -181,15 +190,17 @@ class MotionConfig:
         for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m",
                      "mounting_std_deg", "gyro_scale_std", "accel_scale_std",
                      "nhc_lever_arm_std", "nhc_mount_std_deg", "nhc_slip_deg", "nhc_slip_time",
+                     "velocity_latency", "velocity_latency_std",
                      "velocity_averaging"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x)):
                 raise ValueError(f"{name} must be finite, got {x!r}")
         if min(self.lever_arm_std, self.max_measurement_lag, self.mounting_std_deg,
                self.gyro_scale_std, self.accel_scale_std, self.nhc_lever_arm_std,
-               self.nhc_mount_std_deg,
+               self.nhc_mount_std_deg, self.velocity_latency_std,
                self.nhc_slip_deg, self.nhc_slip_time) < 0:
-            raise ValueError("lever_arm_std, nhc_lever_arm_std, nhc_mount_std_deg, nhc_slip_deg, "
+            raise ValueError("lever_arm_std, nhc_lever_arm_std, nhc_mount_std_deg, "
+                             "velocity_latency_std, nhc_slip_deg, "
                              "nhc_slip_time, "
                              "max_measurement_lag, mounting_std_deg and the scale-factor stds "
                              "must be >= 0")

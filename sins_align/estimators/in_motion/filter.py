@@ -104,7 +104,7 @@ from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEAR
                                                  short_run_sums, skew as _skew)
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "sample_transition",
-           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES"]
+           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES", "EXTRA_SIZES", "extra_size"]
 
 #: longest run of samples propagated in one closed-form step, s
 MAX_RUN = 1.0
@@ -116,9 +116,19 @@ IPHI, INU, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 #: and the accelerometer scale factors (``accel = (1 + s_a) f + b_a``), the lever arm of the
 #: non-holonomic point (body, m) and the rotation of the vehicle's axes against the IMU's
 #: (``nhc_mount``, rad, IMU axes: the vehicle's side is ``exp(eps x) e_axis``; see
-#: :meth:`InvariantEKF.update_lateral`)
-EXTRA_STATES = ("lever", "mount", "gyro_scale", "accel_scale", "nhc_lever", "nhc_mount")
+#: :meth:`InvariantEKF.update_lateral`), and one state: the velocity reference's latency
+#: (``latency``, s: its stamps are that much later than the instant it measured; see
+#: :meth:`InvariantEKF.velocity_model`)
+EXTRA_STATES = ("lever", "mount", "gyro_scale", "accel_scale", "nhc_lever", "nhc_mount",
+                "latency")
+#: states of each optional block (3 unless given here)
+EXTRA_SIZES = {"latency": 1}
 _I3 = np.eye(3)
+
+
+def extra_size(blocks) -> int:
+    """States of the optional blocks ``blocks`` (names of :data:`EXTRA_STATES`)."""
+    return sum(EXTRA_SIZES.get(x, 3) for x in blocks)
 
 
 @dataclass(frozen=True)
@@ -282,12 +292,17 @@ class InvariantEKF:
         if unknown:
             raise ValueError(f"unknown extra states {sorted(unknown)}")
         blocks = [x for x in EXTRA_STATES if x in extra]
-        if self.P.shape[-2:] != (12 + 3 * len(blocks),) * 2:
-            raise ValueError(f"P0 must be {12 + 3 * len(blocks)} square for extra={blocks}")
+        if self.P.shape[-2:] != (12 + extra_size(blocks),) * 2:
+            raise ValueError(f"P0 must be {12 + extra_size(blocks)} square for extra={blocks}")
         self.i_lev = self.i_mnt = self.i_sf = self.i_sa = self.i_nhl = self.i_nhm = None
-        for i, x in enumerate(blocks):
-            sl = slice(12 + 3 * i, 15 + 3 * i)
-            if x == "lever":
+        self.i_lat = None
+        i0 = 12
+        for x in blocks:
+            sl = slice(i0, i0 + EXTRA_SIZES.get(x, 3))
+            i0 = sl.stop
+            if x == "latency":
+                self.i_lat = sl
+            elif x == "lever":
                 self.i_lev = sl
             elif x == "mount":
                 self.i_mnt = sl
@@ -308,6 +323,7 @@ class InvariantEKF:
         self.sa = np.zeros((K, 3))            # accelerometer scale factors (with i_sa)
         self.nhc_lever = np.tile(np.asarray(nhc_lever_arm, dtype=float).reshape(3), (K, 1))
         self.nhc_mount = np.zeros((K, 3))     # vehicle axes against the IMU's (with i_nhm)
+        self.latency = np.zeros((K, 1))       # velocity reference latency, s (with i_lat)
         self.dx = np.zeros((K, self.n))       # error estimate not yet fed back (see feedback)
         #: None: full reset after every update; else a callable giving, for the time since
         #: the last feedback, the (n, n) fraction of the error estimate to feed back
@@ -325,7 +341,7 @@ class InvariantEKF:
         self._earth = None            # (lat, h, earth list) of the last pass (_Linearisation)
 
     _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "sf", "sa",
-               "nhc_lever", "nhc_mount", "dx", "w_last", "f_last", "jitter_enu", "ids")
+               "nhc_lever", "nhc_mount", "latency", "dx", "w_last", "f_last", "jitter_enu", "ids")
 
     @property
     def K(self) -> int:
@@ -709,6 +725,8 @@ class InvariantEKF:
             self.nhc_lever = self.nhc_lever - dx[:, self.i_nhl]
         if self.i_nhm is not None:
             self.nhc_mount = _rotated(self.nhc_mount, dx[:, self.i_nhm])
+        if self.i_lat is not None:
+            self.latency = self.latency - dx[:, self.i_lat]
 
     def _feedback_one(self, dx) -> None:
         """:meth:`feedback` of a bank of one filter, dx (n,): the same arithmetic in floats
@@ -738,6 +756,8 @@ class InvariantEKF:
             self.nhc_lever = (self.nhc_lever[0] - dx[self.i_nhl])[None]
         if self.i_nhm is not None:
             self.nhc_mount = _rotated(self.nhc_mount, dx[self.i_nhm][None])
+        if self.i_lat is not None:
+            self.latency = (self.latency[0] - dx[self.i_lat])[None]
 
     def _body_rate(self):
         """(a, w_nb), each (K, 3), body axes: the navigation frame's rate (Earth and
@@ -747,7 +767,21 @@ class InvariantEKF:
         return a, self.w_last - a
 
     def velocity_model(self):
-        """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state."""
+        """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state.
+
+        With the ``latency`` state (a reference stamped ``tau`` s after the instant it
+        measured, a driver stamping at reception), the prediction is the velocity ``tau``
+        before: ``v - tau a`` with ``a = C f + g`` the acceleration (ENU; the Coriolis and
+        lever-arm terms left out), and ``dz/d tau = -a``."""
+        z_hat, H = self._velocity_model()
+        if self.i_lat is not None:
+            a = np.einsum("kij,kj->ki", self.C, self.f_last)
+            a[:, 2] -= normal_gravity(self.lat, self.h)
+            z_hat = z_hat - self.latency * a
+            H[:, :, self.i_lat] = a[:, :, None]
+        return z_hat, H
+
+    def _velocity_model(self):
         C, lever = self.C, self.lever
         K = self.K
         if self.i_lev is None and not lever.any():
