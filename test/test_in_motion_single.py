@@ -14,7 +14,7 @@ from sins_align.estimators.in_motion.feedback import LqrFeedback, lqr_gain
 
 NOISE = NoiseModel(1e-3, 1e-2, 1e-5, 1e-4)
 STATES = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "sf", "sa",
-          "nhc_lever", "dx", "w_last", "f_last")
+          "nhc_lever", "nhc_mount", "dx", "w_last", "f_last")
 
 
 def _samples(m, seed):
@@ -80,7 +80,7 @@ def _assert_same(one, bank, row, rtol=1e-11):
 @pytest.mark.parametrize("extra, lever, nhc_lever, schedule", [
     ((), (0, 0, 0), (0, 0, 0), False),
     (("lever",), (0.4, -0.2, 0.9), (0, 0, 0), False),
-    (("lever", "mount", "gyro_scale", "accel_scale", "nhc_lever"), (0.4, -0.2, 0.9),
+    (("lever", "mount", "gyro_scale", "accel_scale", "nhc_lever", "nhc_mount"), (0.4, -0.2, 0.9),
      (-1.2, 0.1, -0.3), False),
     (("gyro_scale", "accel_scale"), (0, 0, 0), (-1.2, 0.1, -0.3), True),
 ])

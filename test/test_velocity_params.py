@@ -36,6 +36,10 @@ BASE = {"latitude": 34.0}
     ("lever_arm", [0.1, math.nan, 0.0], "lever_arm must be 3 finite numbers"),
     ("lever_arm", [], "lever_arm must be 3 finite numbers, got []"),
     ("lever_arm", [0.0, 0.0, -1500.0], "lever_arm components must be within [-1000, 1000] m"),
+    ("lever_arm_std", -0.1, "lever_arm_std must be within [0, 100]"),
+    ("nhc_mount_std", 50.0, "nhc_mount_std must be within [0, 45]"),
+    ("velocity_latency_std", 2.0, "velocity_latency_std must be within [0, 1]"),
+    ("velocity_latency", math.inf, "velocity_latency must be"),
     ("velocity_noise", 0.0, "velocity_noise must be within [0.0001, 100], got 0"),
     ("max_measurement_lag", -0.1, "max_measurement_lag must be within [0, 60]"),
     ("velocity_averaging", 1.5, "velocity_averaging must be within [-1, 1]"),
@@ -132,6 +136,22 @@ def test_scale_factor_states_follow_the_gyro_in_use_unless_given():
     assert (given.gyro_scale_std, given.accel_scale_std) == (0.0, 5e-4)
     # the quasi-static estimator has no such states: nothing changes there
     assert "gyro_scale_std" not in vars(P.estimator_config({**BASE, "grade": "consumer"}))
+
+
+def test_lever_arm_mounting_and_latency_are_estimated_unless_given_as_exact():
+    """The node's defaults estimate the antenna's lever arm (1 m 1-sigma), on a ground
+    vehicle the rotation between the IMU's axes and the vehicle's (2 deg), and the velocity
+    reference's latency (0.1 s): an antenna, a mounting or stamps that the user did not give
+    exactly would otherwise be taken as exact
+    (test_in_motion.py, test_in_motion_nhc.py show what that does); 0 keeps them exact."""
+    base = {**BASE, "velocity_topic": "gnss/fix_velocity", "vehicle": "ground"}
+    cfg = P.estimator_config(base)
+    assert (cfg.lever_arm_std, cfg.nhc_mount_std_deg) == (1.0, 2.0)
+    assert (cfg.velocity_latency, cfg.velocity_latency_std) == (0.0, 0.1)
+    exact = P.estimator_config({**base, "lever_arm_std": 0.0, "nhc_mount_std": 0.0,
+                                "velocity_latency": 0.12, "velocity_latency_std": 0.0})
+    assert (exact.lever_arm_std, exact.nhc_mount_std_deg) == (0.0, 0.0)
+    assert (exact.velocity_latency, exact.velocity_latency_std) == (0.12, 0.0)
 
 
 def test_a_navsat_topic_needs_a_velocity_topic():

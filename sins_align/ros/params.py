@@ -178,8 +178,17 @@ PARAMS: tuple[ParamSpec, ...] = (
               "frame: enu or ned (never guessed from frame_id).", choices=VELOCITY_FRAMES),
     ParamSpec("lever_arm", [0.0, 0.0, 0.0], "Lever arm from the IMU to the GNSS antenna (or "
               "master INS), m, in the IMU frame.", rule=_check_lever_arm),
+    ParamSpec("lever_arm_std", 1.0, "1-sigma of lever_arm per axis, m; > 0 estimates it (an "
+              "antenna a metre or two from an IMU told [0, 0, 0] put most instants beyond 3 "
+              "sigma in turns); 0 takes lever_arm as exact.", 0.0, 100.0),
     ParamSpec("velocity_noise", 0.1, "Velocity reference noise 1-sigma, m/s, for messages "
               "without a covariance.", 1e-4, 100.0),
+    ParamSpec("velocity_latency", 0.0, "How much later than the instant it measured the "
+              "velocity reference is stamped, s (a driver that stamps at reception).", -1.0,
+              1.0),
+    ParamSpec("velocity_latency_std", 0.1, "1-sigma of velocity_latency, s; > 0 estimates it "
+              "while the vehicle accelerates (50 ms unaccounted for put a third of a city "
+              "drive beyond 3 sigma); 0 takes it as exact.", 0.0, 1.0),
     ParamSpec("velocity_averaging", -1.0, "Interval over which the velocity reference is "
               "compared with the IMU velocity less its vibration jitter, s: the interval "
               "between velocity messages (0.1 at 10 Hz); 0 compares with the IMU velocity at "
@@ -205,6 +214,9 @@ PARAMS: tuple[ParamSpec, ...] = (
               "frame.", rule=_check_lever_arm),
     ParamSpec("nhc_lever_arm_std", 2.0, "vehicle ground: 1-sigma of nhc_lever_arm per axis, "
               "m; > 0 estimates it in turns (0: taken as exact).", 0.0, 100.0),
+    ParamSpec("nhc_mount_std", 2.0, "vehicle ground: 1-sigma of the rotation between the "
+              "IMU's axes and the vehicle's, deg (an IMU bolted a little askew); > 0 estimates "
+              "it (0: the IMU's lateral_axis is the vehicle's side exactly).", 0.0, 45.0),
     ParamSpec("nhc_slip_deg", 1.0, "vehicle ground: tyre sideslip bound, deg per m/s^2 of "
               "lateral acceleration (the constraint's noise grows in turns to cover it; 0: "
               "none).", 0.0, 10.0),
@@ -459,13 +471,17 @@ def motion_config_from_params(values: dict[str, Any]):
         latitude_deg=float(m["latitude"]), longitude_deg=float(m["longitude"]),
         height_m=float(m["height"]), specs=sensor_specs(m),
         lever_arm=tuple(float(x) for x in m["lever_arm"]),
+        lever_arm_std=float(m["lever_arm_std"]),
         velocity_noise=float(m["velocity_noise"]),
+        velocity_latency=float(m["velocity_latency"]),
+        velocity_latency_std=float(m["velocity_latency_std"]),
         velocity_averaging=velocity_averaging(m),
         gyro_scale_std=gyro_sf, accel_scale_std=accel_sf,
         max_measurement_lag=float(m["max_measurement_lag"]), vehicle=m["vehicle"],
         nhc_axis=int(m["lateral_axis"]),
         nhc_lever_arm=tuple(float(x) for x in m["nhc_lever_arm"]),
         nhc_lever_arm_std=float(m["nhc_lever_arm_std"]),
+        nhc_mount_std_deg=float(m["nhc_mount_std"]),
         nhc_slip_deg=float(m["nhc_slip_deg"]),
         attitude_matching=bool(m["attitude_matching"]),
         initial_rpy_deg=_initial_rpy(m),

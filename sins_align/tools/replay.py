@@ -923,9 +923,11 @@ class ReplaySession:
                 "topic": ref.topic, "type": ref.type, "frame": ref.frame,
                 "navsat_topic": ref.navsat_topic or None, **self.feed.counts()}
             out["final"]["velocity_enu_mps"] = np.asarray(al.velocity, dtype=float).tolist()
+            out["final"]["velocity_latency_s"] = al.velocity_latency
             if al.config.vehicle == "ground":
                 out["final"]["nhc_lever_arm_m"] = np.asarray(al.nhc_lever_arm,
                                                              dtype=float).tolist()
+                out["final"]["nhc_mount_deg"] = np.degrees(al.nhc_mount).tolist()
         if self.truth is not None:
             fin = out["final"]
             fin["error_enu_deg"] = None if self.final_error is None else self.final_error.tolist()
@@ -1105,12 +1107,16 @@ def config_echo(config, params: dict[str, Any]) -> dict[str, Any]:
     }
     if not quasi_static:
         out.update(estimator="in_motion", longitude_deg=config.longitude_deg,
-                   lever_arm_m=list(config.lever_arm), velocity_noise_mps=config.velocity_noise,
+                   lever_arm_m=list(config.lever_arm), lever_arm_std_m=config.lever_arm_std,
+                   velocity_noise_mps=config.velocity_noise,
+                   velocity_latency_s=config.velocity_latency,
+                   velocity_latency_std_s=config.velocity_latency_std,
                    max_measurement_lag_s=config.max_measurement_lag, vehicle=config.vehicle,
                    velocity_averaging_s=config.velocity_averaging)
         if config.vehicle == "ground":
             out.update(nhc_lever_arm_m=list(config.nhc_lever_arm),
                        nhc_lever_arm_std_m=config.nhc_lever_arm_std,
+                       nhc_mount_std_deg=config.nhc_mount_std_deg,
                        nhc_slip_deg=config.nhc_slip_deg)
     return out
 

@@ -42,7 +42,7 @@ from sins_align.estimators.in_motion.config import MotionConfig
 from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFeedback,
                                                       lqr_gain)
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
-                                                    NoiseModel)
+                                                    NoiseModel, extra_size)
 from sins_align.estimators.in_motion.gaps import bridge_gaps
 from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
 from sins_align.estimators.in_motion.stillness import WINDOW as STILL_WINDOW
@@ -222,6 +222,20 @@ class MotionAligner(EventSource, AttitudeReadout):
         the non-holonomic constraint (a ground vehicle's rear-axle centre)."""
         return (np.array(self.config.nhc_lever_arm) if self.ekf is None
                 else self.ekf.corrected(self._best)[6])
+
+    @property
+    def velocity_latency(self) -> float:
+        """s: the velocity reference's latency (its stamps later than the instant measured),
+        estimated with ``velocity_latency_std`` > 0, else the configured one."""
+        return (float(self.config.velocity_latency) if self.ekf is None
+                else float(self.ekf.latency[self._best, 0]))
+
+    @property
+    def nhc_mount(self) -> np.ndarray:
+        """rad, rotation vector in IMU axes: the estimated rotation of the vehicle's axes
+        against the IMU's (the vehicle's side is ``exp(eps x) e_nhc_axis``; zeros when not
+        estimated, ``nhc_mount_std_deg`` 0)."""
+        return np.zeros(3) if self.ekf is None else self.ekf.corrected(self._best)[7]
 
     @property
     def nis(self) -> float:
@@ -419,9 +433,12 @@ class MotionAligner(EventSource, AttitudeReadout):
                                       ("gyro_scale", c.gyro_scale_std > 0),
                                       ("accel_scale", c.accel_scale_std > 0),
                                       ("nhc_lever", c.vehicle == "ground"
-                                       and c.nhc_lever_arm_std > 0))
+                                       and c.nhc_lever_arm_std > 0),
+                                      ("nhc_mount", c.vehicle == "ground"
+                                       and c.nhc_mount_std_deg > 0),
+                                      ("latency", c.velocity_latency_std > 0))
                       if on)
-        n = 12 + 3 * len(extra)
+        n = 12 + extra_size(extra)
         P = np.zeros((K, n, n))
         # attitude: ENU covariance diag(level, level, heading) to body axes
         Pn = np.diag([level_std ** 2, level_std ** 2, head_std ** 2])
@@ -435,9 +452,11 @@ class MotionAligner(EventSource, AttitudeReadout):
         for x in extra:
             std = {"lever": c.lever_arm_std, "mount": c.mounting_std_deg * DEG,
                    "gyro_scale": c.gyro_scale_std, "accel_scale": c.accel_scale_std,
-                   "nhc_lever": c.nhc_lever_arm_std}[x]
-            P[:, i:i + 3, i:i + 3] = np.eye(3) * std ** 2
-            i += 3
+                   "nhc_lever": c.nhc_lever_arm_std, "nhc_mount": c.nhc_mount_std_deg * DEG,
+                   "latency": c.velocity_latency_std}[x]
+            m = extra_size((x,))
+            P[:, i:i + m, i:i + m] = np.eye(m) * std ** 2
+            i += m
         lat, lon, h = self.position
         self.ekf = InvariantEKF(NavState(Cs[0], z, lat, lon, h), P, self.noise, c.lever_arm, C=Cs,
                                 extra=extra, nhc_lever_arm=c.nhc_lever_arm)
@@ -445,6 +464,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             self.ekf.schedule = LqrFeedback(lqr_gain(n, lat, g, c.lqr_time_constant))
         elif c.feedback == "fraction":
             self.ekf.schedule = FractionalFeedback(n, c.feedback_fraction)
+        self.ekf.latency = np.full((K, 1), c.velocity_latency)
         self.ekf.w_last = np.tile(ws[-1], (K, 1))
         self.ekf.f_last = np.tile(fs[-1], (K, 1))
         self._logw = np.full(K, -math.log(K))
@@ -847,6 +867,8 @@ class MotionAligner(EventSource, AttitudeReadout):
             "bias_accel_mg": (self.bias_accel / 9.80665e-3).tolist() if ok else None,
             "lever_arm_m": self.lever_arm.tolist(),
             "nhc_lever_arm_m": self.nhc_lever_arm.tolist(),
+            "nhc_mount_deg": (self.nhc_mount / DEG).tolist(),
+            "velocity_latency_s": self.velocity_latency,
             "mounting_deg": (self.ekf.corrected(self._best)[5] / DEG).tolist() if ok else None,
             "feedback": self.config.feedback,
             "gyro_scale_ppm": (self.ekf.sf[self._best] * 1e6).tolist() if ok else None,

@@ -32,6 +32,13 @@ class MotionConfig:
     lever_arm : (3,) m, IMU frame — from the IMU to the antenna of the velocity reference.
     lever_arm_std : m — its 1-sigma uncertainty per axis; > 0 estimates it (15 states).
     velocity_noise : m/s — 1-sigma of a velocity measurement that comes without covariance.
+    velocity_latency : s — how much later than the instant it measured the velocity
+        reference is stamped (a driver that stamps at reception: tens to a couple of hundred
+        ms); the filter compares it with its velocity that long before its stamp.
+    velocity_latency_std : s — its 1-sigma; > 0 estimates it (1 more state, seen while the
+        vehicle accelerates: a 2 m/s^2 acceleration and 0.1 s of latency make 0.2 m/s). 0
+        takes ``velocity_latency`` as exact (stamped at 50 ms after the fact and taken as
+        exact, a city drive's attitude was beyond 3 sigma a third of the time).
     velocity_averaging : s — the reference is compared with the IMU velocity less its jitter
         over this interval before the measurement's sample (the velocity less its
         least-squares straight line over it:
@@ -60,6 +67,13 @@ class MotionConfig:
         states, observable in turns; in straight driving it does not matter). The default
         2 m covers an IMU anywhere in a car with the default (0, 0, 0); 0 takes
         ``nhc_lever_arm`` as exact.
+    nhc_mount_std_deg : deg — 1-sigma of the rotation between the IMU's axes and the
+        vehicle's (an IMU bolted a little askew: a 2 deg yaw puts 0.35 m/s of a 10 m/s
+        forward speed on the IMU's side axis, which the constraint would otherwise read as
+        a heading error of 2 deg with a std of a few hundredths); > 0 estimates it (3 more
+        states: the heading from the constraint alone is then no better than this, and the
+        turns and accelerations, which the velocity reference sees, tell the two apart);
+        0 takes the IMU's ``nhc_axis`` as the vehicle's side exactly.
     initial_rpy_deg : REP-103 roll, pitch, yaw guess, or None. Roll and pitch are always
         taken from the accelerometers at the start (any start converges, upside down too);
         the yaw is the heading guess.
@@ -102,6 +116,8 @@ class MotionConfig:
     lever_arm: tuple = (0.0, 0.0, 0.0)
     lever_arm_std: float = 0.0
     velocity_noise: float = 0.1
+    velocity_latency: float = 0.0
+    velocity_latency_std: float = 0.0
     velocity_averaging: float = 0.1
     max_measurement_lag: float = 0.5
     vehicle: str = "air"
@@ -110,6 +126,7 @@ class MotionConfig:
     nhc_period: float = 0.1
     nhc_lever_arm: tuple = (0.0, 0.0, 0.0)
     nhc_lever_arm_std: float = 2.0
+    nhc_mount_std_deg: float = 2.0
     nhc_slip_deg: float = 1.0
     nhc_slip_time: float = 3.0
     initial_rpy_deg: tuple | None = None
@@ -172,15 +189,19 @@ class MotionConfig:
                 raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
         for name in ("lever_arm_std", "max_measurement_lag", "longitude_deg", "height_m",
                      "mounting_std_deg", "gyro_scale_std", "accel_scale_std",
-                     "nhc_lever_arm_std", "nhc_slip_deg", "nhc_slip_time",
+                     "nhc_lever_arm_std", "nhc_mount_std_deg", "nhc_slip_deg", "nhc_slip_time",
+                     "velocity_latency", "velocity_latency_std",
                      "velocity_averaging"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x)):
                 raise ValueError(f"{name} must be finite, got {x!r}")
         if min(self.lever_arm_std, self.max_measurement_lag, self.mounting_std_deg,
                self.gyro_scale_std, self.accel_scale_std, self.nhc_lever_arm_std,
+               self.nhc_mount_std_deg, self.velocity_latency_std,
                self.nhc_slip_deg, self.nhc_slip_time) < 0:
-            raise ValueError("lever_arm_std, nhc_lever_arm_std, nhc_slip_deg, nhc_slip_time, "
+            raise ValueError("lever_arm_std, nhc_lever_arm_std, nhc_mount_std_deg, "
+                             "velocity_latency_std, nhc_slip_deg, "
+                             "nhc_slip_time, "
                              "max_measurement_lag, mounting_std_deg and the scale-factor stds "
                              "must be >= 0")
         if not 0.0 <= self.velocity_averaging <= 1.0:

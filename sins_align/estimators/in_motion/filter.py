@@ -104,7 +104,7 @@ from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEAR
                                                  short_run_sums, skew as _skew)
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "sample_transition",
-           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES"]
+           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES", "EXTRA_SIZES", "extra_size"]
 
 #: longest run of samples propagated in one closed-form step, s
 MAX_RUN = 1.0
@@ -113,9 +113,22 @@ IPHI, INU, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 #: optional 3-state blocks after the 12 core states, in this order when present: the lever
 #: arm (body, m), the mounting misalignment of a master INS (``C_slave = C_master exp(mu
 #: x)``, rad, master axes), the gyro scale factors (``gyro = (1 + s) w + b_g``, per axis)
-#: and the accelerometer scale factors (``accel = (1 + s_a) f + b_a``)
-EXTRA_STATES = ("lever", "mount", "gyro_scale", "accel_scale", "nhc_lever")
+#: and the accelerometer scale factors (``accel = (1 + s_a) f + b_a``), the lever arm of the
+#: non-holonomic point (body, m) and the rotation of the vehicle's axes against the IMU's
+#: (``nhc_mount``, rad, IMU axes: the vehicle's side is ``exp(eps x) e_axis``; see
+#: :meth:`InvariantEKF.update_lateral`), and one state: the velocity reference's latency
+#: (``latency``, s: its stamps are that much later than the instant it measured; see
+#: :meth:`InvariantEKF.velocity_model`)
+EXTRA_STATES = ("lever", "mount", "gyro_scale", "accel_scale", "nhc_lever", "nhc_mount",
+                "latency")
+#: states of each optional block (3 unless given here)
+EXTRA_SIZES = {"latency": 1}
 _I3 = np.eye(3)
+
+
+def extra_size(blocks) -> int:
+    """States of the optional blocks ``blocks`` (names of :data:`EXTRA_STATES`)."""
+    return sum(EXTRA_SIZES.get(x, 3) for x in blocks)
 
 
 @dataclass(frozen=True)
@@ -279,12 +292,17 @@ class InvariantEKF:
         if unknown:
             raise ValueError(f"unknown extra states {sorted(unknown)}")
         blocks = [x for x in EXTRA_STATES if x in extra]
-        if self.P.shape[-2:] != (12 + 3 * len(blocks),) * 2:
-            raise ValueError(f"P0 must be {12 + 3 * len(blocks)} square for extra={blocks}")
-        self.i_lev = self.i_mnt = self.i_sf = self.i_sa = self.i_nhl = None
-        for i, x in enumerate(blocks):
-            sl = slice(12 + 3 * i, 15 + 3 * i)
-            if x == "lever":
+        if self.P.shape[-2:] != (12 + extra_size(blocks),) * 2:
+            raise ValueError(f"P0 must be {12 + extra_size(blocks)} square for extra={blocks}")
+        self.i_lev = self.i_mnt = self.i_sf = self.i_sa = self.i_nhl = self.i_nhm = None
+        self.i_lat = None
+        i0 = 12
+        for x in blocks:
+            sl = slice(i0, i0 + EXTRA_SIZES.get(x, 3))
+            i0 = sl.stop
+            if x == "latency":
+                self.i_lat = sl
+            elif x == "lever":
                 self.i_lev = sl
             elif x == "mount":
                 self.i_mnt = sl
@@ -292,8 +310,10 @@ class InvariantEKF:
                 self.i_sf = sl
             elif x == "accel_scale":
                 self.i_sa = sl
-            else:
+            elif x == "nhc_lever":
                 self.i_nhl = sl
+            else:
+                self.i_nhm = sl
         self.noise = noise
         self.bg = np.zeros((K, 3))
         self.ba = np.zeros((K, 3))
@@ -302,6 +322,8 @@ class InvariantEKF:
         self.sf = np.zeros((K, 3))            # gyro scale factors (estimated with i_sf)
         self.sa = np.zeros((K, 3))            # accelerometer scale factors (with i_sa)
         self.nhc_lever = np.tile(np.asarray(nhc_lever_arm, dtype=float).reshape(3), (K, 1))
+        self.nhc_mount = np.zeros((K, 3))     # vehicle axes against the IMU's (with i_nhm)
+        self.latency = np.zeros((K, 1))       # velocity reference latency, s (with i_lat)
         self.dx = np.zeros((K, self.n))       # error estimate not yet fed back (see feedback)
         #: None: full reset after every update; else a callable giving, for the time since
         #: the last feedback, the (n, n) fraction of the error estimate to feed back
@@ -319,7 +341,7 @@ class InvariantEKF:
         self._earth = None            # (lat, h, earth list) of the last pass (_Linearisation)
 
     _ARRAYS = ("C", "v", "lat", "lon", "h", "P", "bg", "ba", "lever", "mount", "sf", "sa",
-               "nhc_lever", "dx", "w_last", "f_last", "jitter_enu", "ids")
+               "nhc_lever", "nhc_mount", "latency", "dx", "w_last", "f_last", "jitter_enu", "ids")
 
     @property
     def K(self) -> int:
@@ -681,20 +703,24 @@ class InvariantEKF:
 
     def corrected(self, i: int):
         """Filter i's state with the error estimate not yet fed back removed: (C, v, bg, ba,
-        lever, mount, nhc_lever). With full feedback that is the state itself."""
+        lever, mount, nhc_lever, nhc_mount). With full feedback that is the state itself."""
         dx = self.dx[i]
         if not dx.any():           # (full reset: nothing carried; the same values, copied)
             return (self.C[i].copy(), self.v[i].copy(), self.bg[i].copy(), self.ba[i].copy(),
-                    self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy())
+                    self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy(),
+                    self.nhc_mount[i].copy())
         C = self.C[i] @ so3_exp(-dx[IPHI])
         out = [C, self.v[i] - C @ dx[INU], self.bg[i] - dx[IBG], self.ba[i] - dx[IBA],
-               self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy()]
+               self.lever[i].copy(), self.mount[i].copy(), self.nhc_lever[i].copy(),
+               self.nhc_mount[i].copy()]
         if self.i_lev is not None:
             out[4] = out[4] - dx[self.i_lev]
         if self.i_mnt is not None:
             out[5] = out[5] - dx[self.i_mnt]
         if self.i_nhl is not None:
             out[6] = out[6] - dx[self.i_nhl]
+        if self.i_nhm is not None:
+            out[7] = _rotated(out[7][None], dx[self.i_nhm][None])[0]
         return tuple(out)
 
     def feedback(self, dx) -> None:
@@ -716,6 +742,10 @@ class InvariantEKF:
             self.sa = self.sa - dx[:, self.i_sa]
         if self.i_nhl is not None:
             self.nhc_lever = self.nhc_lever - dx[:, self.i_nhl]
+        if self.i_nhm is not None:
+            self.nhc_mount = _rotated(self.nhc_mount, dx[:, self.i_nhm])
+        if self.i_lat is not None:
+            self.latency = self.latency - dx[:, self.i_lat]
 
     def _feedback_one(self, dx) -> None:
         """:meth:`feedback` of a bank of one filter, dx (n,): the same arithmetic in floats
@@ -743,6 +773,10 @@ class InvariantEKF:
             self.sa = (self.sa[0] - dx[self.i_sa])[None]
         if self.i_nhl is not None:
             self.nhc_lever = (self.nhc_lever[0] - dx[self.i_nhl])[None]
+        if self.i_nhm is not None:
+            self.nhc_mount = _rotated(self.nhc_mount, dx[self.i_nhm][None])
+        if self.i_lat is not None:
+            self.latency = (self.latency[0] - dx[self.i_lat])[None]
 
     def _body_rate(self):
         """(a, w_nb), each (K, 3), body axes: the navigation frame's rate (Earth and
@@ -752,7 +786,21 @@ class InvariantEKF:
         return a, self.w_last - a
 
     def velocity_model(self):
-        """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state."""
+        """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state.
+
+        With the ``latency`` state (a reference stamped ``tau`` s after the instant it
+        measured, a driver stamping at reception), the prediction is the velocity ``tau``
+        before: ``v - tau a`` with ``a = C f + g`` the acceleration (ENU; the Coriolis and
+        lever-arm terms left out), and ``dz/d tau = -a``."""
+        z_hat, H = self._velocity_model()
+        if self.i_lat is not None:
+            a = np.einsum("kij,kj->ki", self.C, self.f_last)
+            a[:, 2] -= normal_gravity(self.lat, self.h)
+            z_hat = z_hat - self.latency * a
+            H[:, :, self.i_lat] = a[:, :, None]
+        return z_hat, H
+
+    def _velocity_model(self):
         C, lever = self.C, self.lever
         K = self.K
         if self.i_lev is None and not lever.any():
@@ -844,10 +892,14 @@ class InvariantEKF:
 
     def update_lateral(self, axis: int, sigma: float, nis_limit=None, slip: float = 0.0,
                        slip_updates: float = 1.0, consider_heading=False):
-        """Non-holonomic constraint: the body velocity along ``axis`` of the point at
-        ``nhc_lever`` (body axes, from the IMU: a car's rear-axle centre) is zero (+- sigma).
-        That velocity is ``C^T v + w_nb x l``, the rate term as the antenna's of
-        :meth:`velocity_model`, in body axes.
+        """Non-holonomic constraint: the velocity of the point at ``nhc_lever`` (body axes,
+        from the IMU: a car's rear-axle centre) has no component along the vehicle's side
+        (+- sigma). That velocity is ``C^T v + w_nb x l``, the rate term as the antenna's of
+        :meth:`velocity_model`, in body axes; the vehicle's side is the IMU's ``axis``, or,
+        with the ``nhc_mount`` states (an IMU mounted a little rotated against the vehicle:
+        a 2 deg yaw puts 0.35 m/s of the forward speed on the IMU's side axis at 10 m/s),
+        ``u = exp(eps x) e_axis`` (eps in IMU axes; its component along ``e_axis`` is
+        invisible and keeps its prior).
 
         ``slip`` (rad per m/s^2): a tyre's sideslip angle per m/s^2 of lateral acceleration
         (a bound). In a turn the lateral velocity is not zero but about ``slip a_lat u`` (u
@@ -855,29 +907,56 @@ class InvariantEKF:
         ``slip_updates`` (how many updates it lasts), so that the updates of one turn together
         claim no more than one. Each filter of the bank takes its own speed and rate.
         ``consider_heading``: as :meth:`update_velocity`'s (a parked vehicle)."""
+        if self.i_nhm is None:
+            return self._update_side(axis, None, sigma, nis_limit, slip, slip_updates,
+                                     consider_heading)
+        u = so3_exp(self.nhc_mount)[:, :, axis]                         # (K, 3), IMU axes
+        return self._update_side(axis, u, sigma, nis_limit, slip, slip_updates,
+                                 consider_heading)
+
+    def _update_side(self, axis, u, sigma, nis_limit, slip, slip_updates,
+                     consider_heading=False):
+        """:meth:`update_lateral` along the IMU's ``axis`` (u None) or along the unit vectors
+        u (K, 3) of the vehicle's side in IMU axes (the ``nhc_mount`` states)."""
         C = self.C
         vb = np.einsum("kji,kj->ki", C, self.v)
+        if u is None:
+            def side(M):                    # the side's row of (K, 3, m) body-axis rows
+                return M[:, axis, :]
+
+            def side_v(x):                  # the side's component of (K, 3) vectors
+                return x[:, axis]
+        else:
+            def side(M):
+                return np.einsum("ki,kij->kj", u, M)
+
+            def side_v(x):
+                return np.einsum("ki,ki->k", u, x)
         H = np.zeros((self.K, 1, self.n))
-        H[:, 0, IPHI] = -_skew(vb)[:, axis, :]
-        H[:, 0, INU] = -_I3[axis]
+        H[:, 0, IPHI] = -side(_skew(vb))
+        H[:, 0, INU] = -(_I3[axis] if u is None else u)
         lever = self.nhc_lever
         at_lever = self.i_nhl is not None or lever.any()
         R = np.array([[sigma * sigma]])
         if at_lever or slip > 0.0:
             a, w_nb = self._body_rate()
         if slip > 0.0:                      # the IMU's own lateral acceleration and speed
-            a_lat = np.abs(_cross(w_nb, vb)[:, axis])
-            u = np.linalg.norm(vb, axis=1)
-            R = (sigma * sigma + slip_updates * (slip * a_lat * u) ** 2)[:, None, None]
+            a_lat = np.abs(side_v(_cross(w_nb, vb)))
+            speed = np.linalg.norm(vb, axis=1)
+            R = (sigma * sigma + slip_updates * (slip * a_lat * speed) ** 2)[:, None, None]
         if at_lever:
             vb = vb + _cross(w_nb, lever)
-            H[:, 0, IPHI] -= (_skew(lever) @ _skew(a))[:, axis, :]
-            H[:, 0, IBG] = -_skew(lever)[:, axis, :]
+            H[:, 0, IPHI] -= side(_skew(lever) @ _skew(a))
+            H[:, 0, IBG] = -side(_skew(lever))
             if self.i_nhl is not None:
-                H[:, 0, self.i_nhl] = -_skew(w_nb)[:, axis, :]
+                H[:, 0, self.i_nhl] = -side(_skew(w_nb))
             if self.i_sf is not None:
-                H[:, 0, self.i_sf] = (-_skew(lever) * self.w_last[:, None, :])[:, axis, :]
-        return self._apply(-vb[:, axis:axis + 1], H, R, nis_limit, consider_heading)
+                H[:, 0, self.i_sf] = side(-_skew(lever) * self.w_last[:, None, :])
+        if u is not None:
+            # the side's error (see _rotated): u_true = exp(-d x) u, so its velocity
+            # component changes by -d . (u x v_b) to first order
+            H[:, 0, self.i_nhm] = -_cross(u, vb)
+        return self._apply(-side_v(vb)[:, None], H, R, nis_limit, consider_heading)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
         """Attitude of a master INS: ``C_ref = C exp(-mu x) exp(n x)``, with ``mu`` the
@@ -891,6 +970,13 @@ class InvariantEKF:
         if self.i_mnt is not None:
             H[:, :, self.i_mnt] = _I3
         return self._apply(y, H, np.asarray(R, dtype=float), nis_limit)
+
+
+def _rotated(eps, d):
+    """The ``nhc_mount`` rotation vectors eps (K, 3) with their errors d (K, 3) removed:
+    ``log(exp(-d x) exp(eps x))`` (the error is a rotation on the left of the estimate's:
+    the side ``u = exp(eps x) e_axis`` is then off by ``d x u`` exactly to first order)."""
+    return so3_log(so3_exp(-d) @ so3_exp(eps))
 
 
 def sample_transition(ekf: InvariantEKF, dt: float, gyro, accel) -> np.ndarray:

@@ -20,6 +20,20 @@ they cannot say (:func:`bridge_gaps`):
   before the hole (the slow motion; the vibration averages out of it); when another hole
   just before leaves that window less than half full (losses come in bursts), the last
   window's worth of samples held within :data:`FILL_REACH` windows;
+- one sample lost (``g`` up to ``GAP_RATIO`` nominal intervals) is predicted instead, when
+  the :data:`PREDICT_LAGS` samples before it are a nominal interval apart: per axis, the
+  least-squares fit of each sample on the ones before it, the one after it and a constant,
+  over the last :data:`PREDICT_FIT` s of samples, applied around the hole (the sample after
+  it is at hand: it shows the hole). A rotor's vibration is a few tones, which such a fit
+  follows: seed 003's UAV with 3 m/s^2 at 20-80 Hz and 2 % of the samples lost at random,
+  the made-up sample erred by 1.5-2.0 m/s^2 RMS (the vibration itself) as the mean,
+  0.010-0.019 predicted. The mean's error was a velocity step of ~0.02 m/s that every
+  heading hypothesis of a bank carries turned by its own heading and that the likelihood
+  weights took for heading evidence (each hole turned the log-weights by 0.3-0.45, in a
+  random direction): while the UAV hovered, the bank's heading (e/sigma)^2 was 1.5-7.7 over
+  seeds 0-5 (38 % of the instants beyond 3 sigma in seed 1), 0.3-3.6 predicted (0.2-3.9
+  with nothing lost). The variance stays the mean's (below): it covers the prediction many
+  times over;
 - the hole's true content differs from that mean by its own fast part (vibration, noise)
   and by any change of the slow motion. Per axis, with ``s^2`` the variance of the samples
   about their mean over the window and ``d`` the sample after the hole less the mean, the
@@ -43,7 +57,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GAP_RATIO", "FILL_WINDOW", "FILL_REACH", "Bridges", "bridge_gaps"]
+__all__ = ["GAP_RATIO", "FILL_WINDOW", "FILL_REACH", "PREDICT_LAGS", "PREDICT_FIT",
+           "Bridges", "bridge_gaps"]
 
 #: an interval above this multiple of the nominal interval is a hole
 GAP_RATIO = 1.5
@@ -52,6 +67,11 @@ FILL_WINDOW = 0.25
 #: how far back (in windows) a hole looks when its window holds less than half the samples
 #: it should (another hole just before it: losses come in bursts)
 FILL_REACH = 3.0
+#: one lost sample is predicted from this many samples before it (and the one after it)
+PREDICT_LAGS = 6
+#: s of held samples the predictor of a lost sample is fitted on (within what the aligner
+#: holds for a rewind; an IMU slower than ~32 Hz has too few rows in it: the mean)
+PREDICT_FIT = 1.0
 
 
 class Bridges:
@@ -102,10 +122,17 @@ def bridge_gaps(prev: float, t, w, f, dt_nominal: float, before) -> Bridges:
         else:                               # (nothing before it: the sample bridges it)
             mw, mf, sw, sf = w[i], f[i], np.zeros(3), np.zeros(3)
         ft.append(t_prev + g)
-        fw.append(mw)
-        ff.append(mf)
+        # the variance: that of the mean (below: the predicted sample errs less)
         vw.append(np.full(3, (g * dt_nominal * sw + (g * (w[i] - mw)) ** 2).max()))
         vf.append(np.full(3, (g * dt_nominal * sf + (g * (f[i] - mf)) ** 2).max()))
+        if g <= GAP_RATIO * dt_nominal:     # one sample lost: predicted, if it can be
+            th, wh, fh = before(t_prev, PREDICT_FIT)
+            pw = _predicted(th, wh, w[i], dt_nominal)
+            pf = _predicted(th, fh, f[i], dt_nominal)
+            if pw is not None and pf is not None:
+                mw, mf = pw, pf
+        fw.append(mw)
+        ff.append(mf)
     t2 = np.insert(np.asarray(t, dtype=float), holes, ft)
     w2 = np.insert(np.asarray(w, dtype=float), holes, fw, axis=0)
     f2 = np.insert(np.asarray(f, dtype=float), holes, ff, axis=0)
@@ -114,3 +141,32 @@ def bridge_gaps(prev: float, t, w, f, dt_nominal: float, before) -> Bridges:
     d2[fills] = np.array(ft) - np.concatenate(([prev], t2))[fills]
     d2[fills + 1] = t2[fills + 1] - t2[fills]
     return Bridges(t2, d2, w2, f2, fills.tolist(), np.array(vw), np.array(vf))
+
+
+def _predicted(th, xh, x_after, dt_nominal: float):
+    """The lost sample between the held samples ``th``, ``xh`` (m,), (m, 3) (the last of them
+    the one before the hole) and ``x_after`` (3,), the sample after it: per axis, the least
+    squares fit of each held sample on the :data:`PREDICT_LAGS` before it, the one after it
+    and a constant, over the rows of ``th`` whose samples are all one nominal interval apart;
+    None when the samples before the hole are not, or fewer than ``3 x`` the coefficients'
+    rows are."""
+    p = PREDICT_LAGS
+    m = len(th)
+    if m < p + 2:
+        return None
+    steady = np.diff(th) <= GAP_RATIO * dt_nominal
+    if not steady[-p:].all():
+        return None
+    breaks = np.concatenate(([0], np.cumsum(~steady)))
+    rows = np.arange(p, m - 1)
+    rows = rows[breaks[rows + 1] == breaks[rows - p]]
+    if len(rows) < 3 * (p + 2):
+        return None
+    out = np.empty(3)
+    for a in range(3):
+        x = xh[:, a]
+        X = np.column_stack([x[rows - j] for j in range(1, p + 1)]
+                            + [x[rows + 1], np.ones(len(rows))])
+        coef = np.linalg.lstsq(X, x[rows], rcond=None)[0]
+        out[a] = np.concatenate((x[-1:-p - 1:-1], [x_after[a], 1.0])) @ coef
+    return out
