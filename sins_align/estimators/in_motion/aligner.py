@@ -35,7 +35,7 @@ import numpy as np
 
 from sins_align.core.earth import normal_gravity
 from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rpy,
-                                      so3_left_jacobian_inv)
+                                      so3_left_jacobian_inv, so3_log)
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion.config import MotionConfig
@@ -232,7 +232,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         """rad, rotation vector in IMU axes: the estimated rotation of the vehicle's axes
         against the IMU's (the vehicle's side is ``exp(eps x) e_nhc_axis``; zeros when not
         estimated, ``nhc_mount_std_deg`` 0)."""
-        return np.zeros(3) if self.ekf is None else self.ekf.corrected(self._best)[7]
+        return (np.zeros(3) if self.ekf is None
+                else so3_log(self.ekf.corrected(self._best)[7]))
 
     @property
     def nis(self) -> float:
