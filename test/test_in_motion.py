@@ -344,6 +344,45 @@ def test_velocity_stamped_late_stays_honest(seed):
     assert frac0 > 0.3, frac0
 
 
+@pytest.mark.parametrize("mode", ["ned", "swapped"])
+def test_a_reference_in_the_wrong_frame_is_said_to_contradict_the_imu(mode):
+    """GNSS velocity given in NED (or with east and north swapped) to a filter told ENU: a
+    reflection, which a straight drive cannot tell from a heading 60 deg off and every turn
+    contradicts (NIS in the hundreds to thousands). Before: heading 60 deg off with a std of
+    0.1-0.4 deg, 95 % of the instants beyond 3 sigma, flagged aligned at 440-530 of them.
+    Now: from the first turn on the attitude is published as unknown (pi^2) and
+    ``reference_consistent`` is False; it is never flagged aligned after that and never
+    beyond 3 sigma, except while the straight start agrees with the wrong heading (no
+    reference can show a reflection there)."""
+    traj = car_city()
+    r = simulate_trajectory(traj, 100.0, CONSUMER_MEMS, seed=0, gnss_rate=10.0,
+                            gnss_sigma=0.05, duration=200.0)
+    al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
+                                    height_m=traj.height_m, specs=CONSUMER_MEMS,
+                                    velocity_noise=0.05))
+    for tg, vg in zip(r.gnss_t, r.gnss_v):
+        e, n, u = vg
+        al.add_velocity(tg, np.array([n, e, -u] if mode == "ned" else [n, e, u]))
+    t, z, A, ok = [], [], [], []
+    for k in range(0, len(r.gyro), 10):
+        e = min(k + 10, len(r.gyro))
+        al.update(r.t[k + 1:e + 1], r.gyro[k:e], r.accel[k:e])
+        if al.initialized:
+            t.append(r.t[e])
+            z.append(np.abs(attitude_error(r.C[e], al.dcm)) / np.sqrt(np.diag(al.covariance)))
+            A.append(al.aligned)
+            ok.append(al.reference_consistent)
+    t, z, A, ok = map(np.array, (t, z, A, ok))
+    first = t[np.argmax(~ok)]
+    assert not ok.all() and first < 70.0, first          # the first turns (car_city)
+    later = t >= first
+    assert not ok[later].any()                  # within 60 s of every turn: all along here
+    assert not A[later].any()
+    assert (z[later] <= 3.0).all()
+    assert al.events["reference_inconsistent"] >= 1
+    assert al.summary()["reference_consistent"] is False
+
+
 def test_parked_mems_levels_but_never_claims_a_heading():
     segs = (Segment(120.0),)
     traj = Trajectory(segs, 34.0, 108.0, 0.0, 50.0, 0.0, "parked")
