@@ -274,6 +274,28 @@ def test_non_holonomic_constraint_gives_heading_from_straight_driving():
     assert S2[-1, 2] > 2.0 * S0[-1, 2]
 
 
+def _car_city_beyond(seed, lever=(0.0, 0.0, 0.0), stamp_late=0.0, **cfg):
+    """car_city (150 s, consumer MEMS, GNSS 10 Hz 0.05 m/s, the antenna at ``lever``, every
+    velocity stamped ``stamp_late`` s after the instant it measured) through MotionAligner
+    with ``cfg``: the share of the published instants after the bank beyond 3 sigma, and the
+    aligner."""
+    traj = car_city()
+    r = simulate_trajectory(traj, 100.0, CONSUMER_MEMS, seed=seed, gnss_rate=10.0,
+                            gnss_sigma=0.05, lever_arm=lever, duration=150.0)
+    al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
+                                    height_m=traj.height_m, specs=CONSUMER_MEMS,
+                                    velocity_noise=0.05, **cfg))
+    for tg, vg in zip(r.gnss_t, r.gnss_v):
+        al.add_velocity(tg + stamp_late, vg)
+    z = []
+    for k in range(0, len(r.gyro), 10):
+        e = min(k + 10, len(r.gyro))
+        al.update(r.t[k + 1:e + 1], r.gyro[k:e], r.accel[k:e])
+        if al.initialized and al.hypotheses == 1:
+            z.append(np.abs(attitude_error(r.C[e], al.dcm)) / np.sqrt(np.diag(al.covariance)))
+    return (np.array(z) > 3.0).any(axis=1).mean(), al
+
+
 @pytest.mark.parametrize("seed", [0, 2])
 def test_an_antenna_away_from_the_imu_that_nobody_gave_stays_honest(seed):
     """car_city with the GNSS antenna 1.4 m from the IMU (1 m ahead, 1 m up) and the lever
@@ -281,31 +303,12 @@ def test_an_antenna_away_from_the_imu_that_nobody_gave_stays_honest(seed):
     level, 76-78 % of the instants beyond 3 sigma (level up to 10 sigma), flagged aligned;
     with it estimated from a 1 m prior (the node's default lever_arm_std) 0-0.1 %, and the
     same accuracy (level std 0.016 deg against 0.015 deg)."""
-    traj = car_city()
-    r = simulate_trajectory(traj, 100.0, CONSUMER_MEMS, seed=seed, gnss_rate=10.0,
-                            gnss_sigma=0.05, lever_arm=(1.0, 0.0, 1.0), duration=150.0)
-
-    def over(**kw):
-        al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
-                                        height_m=traj.height_m, specs=CONSUMER_MEMS,
-                                        velocity_noise=0.05, **kw))
-        for tg, vg in zip(r.gnss_t, r.gnss_v):
-            al.add_velocity(tg, vg)
-        z = []
-        for k in range(0, len(r.gyro), 10):
-            e = min(k + 10, len(r.gyro))
-            al.update(r.t[k + 1:e + 1], r.gyro[k:e], r.accel[k:e])
-            if al.initialized and al.hypotheses == 1:
-                z.append(np.abs(attitude_error(r.C[e], al.dcm))
-                         / np.sqrt(np.diag(al.covariance)))
-        z = np.array(z)
-        return (z > 3.0).any(axis=1).mean(), al
-
-    frac, al = over(lever_arm_std=1.0)
+    lever = (1.0, 0.0, 1.0)
+    frac, al = _car_city_beyond(seed, lever, lever_arm_std=1.0)
     assert frac <= 0.02, frac
     # forward, the yaw turns show it (up, a car's small roll and pitch rates hardly do)
     assert abs(al.lever_arm[0] - 1.0) < 0.3, al.lever_arm
-    frac0, _ = over()                           # MotionConfig's default: taken as exact
+    frac0, _ = _car_city_beyond(seed, lever)    # MotionConfig's default: taken as exact
     assert frac0 > 0.3, frac0
 
 
@@ -316,32 +319,51 @@ def test_velocity_stamped_late_stays_honest(seed):
     the attitude: 69-70 % of the instants beyond 3 sigma (level 11 sigma), flagged aligned;
     with the latency estimated from a 0.1 s prior (the node's default), 0-0.1 % and the same
     accuracy, the latency learnt."""
-    traj = car_city()
-    r = simulate_trajectory(traj, 100.0, CONSUMER_MEMS, seed=seed, gnss_rate=10.0,
-                            gnss_sigma=0.05, duration=150.0)
-
-    def over(**kw):
-        al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
-                                        height_m=traj.height_m, specs=CONSUMER_MEMS,
-                                        velocity_noise=0.05, **kw))
-        for tg, vg in zip(r.gnss_t, r.gnss_v):
-            al.add_velocity(tg + 0.1, vg)
-        z = []
-        for k in range(0, len(r.gyro), 10):
-            e = min(k + 10, len(r.gyro))
-            al.update(r.t[k + 1:e + 1], r.gyro[k:e], r.accel[k:e])
-            if al.initialized and al.hypotheses == 1:
-                z.append(np.abs(attitude_error(r.C[e], al.dcm))
-                         / np.sqrt(np.diag(al.covariance)))
-        z = np.array(z)
-        return (z > 3.0).any(axis=1).mean(), al
-
-    frac, al = over(velocity_latency_std=0.1)
+    frac, al = _car_city_beyond(seed, stamp_late=0.1, velocity_latency_std=0.1)
     assert frac <= 0.02, frac
     assert abs(al.velocity_latency - 0.1) < 0.02, al.velocity_latency
     assert al.summary()["velocity_latency_s"] == al.velocity_latency
-    frac0, _ = over()                           # MotionConfig's default: stamps on time
+    frac0, _ = _car_city_beyond(seed, stamp_late=0.1)    # MotionConfig's default: on time
     assert frac0 > 0.3, frac0
+
+
+@pytest.mark.parametrize("mode", ["ned", "swapped"])
+def test_a_reference_in_the_wrong_frame_is_said_to_contradict_the_imu(mode):
+    """GNSS velocity given in NED (or with east and north swapped) to a filter told ENU: a
+    reflection, which a straight drive cannot tell from a heading 60 deg off and every turn
+    contradicts (NIS in the hundreds to thousands). Before: heading 60 deg off with a std of
+    0.1-0.4 deg, 95 % of the instants beyond 3 sigma, flagged aligned at 440-530 of them.
+    Now: from the first turn on the attitude is published as unknown (pi^2) and
+    ``reference_consistent`` is False; it is never flagged aligned after that and never
+    beyond 3 sigma, except while the straight start agrees with the wrong heading (no
+    reference can show a reflection there)."""
+    traj = car_city()
+    r = simulate_trajectory(traj, 100.0, CONSUMER_MEMS, seed=0, gnss_rate=10.0,
+                            gnss_sigma=0.05, duration=200.0)
+    al = MotionAligner(MotionConfig(latitude_deg=traj.lat_deg, longitude_deg=traj.lon_deg,
+                                    height_m=traj.height_m, specs=CONSUMER_MEMS,
+                                    velocity_noise=0.05))
+    for tg, vg in zip(r.gnss_t, r.gnss_v):
+        e, n, u = vg
+        al.add_velocity(tg, np.array([n, e, -u] if mode == "ned" else [n, e, u]))
+    t, z, A, ok = [], [], [], []
+    for k in range(0, len(r.gyro), 10):
+        e = min(k + 10, len(r.gyro))
+        al.update(r.t[k + 1:e + 1], r.gyro[k:e], r.accel[k:e])
+        if al.initialized:
+            t.append(r.t[e])
+            z.append(np.abs(attitude_error(r.C[e], al.dcm)) / np.sqrt(np.diag(al.covariance)))
+            A.append(al.aligned)
+            ok.append(al.reference_consistent)
+    t, z, A, ok = map(np.array, (t, z, A, ok))
+    first = t[np.argmax(~ok)]
+    assert not ok.all() and first < 70.0, first          # the first turns (car_city)
+    later = t >= first
+    assert not ok[later].any()                  # within 60 s of every turn: all along here
+    assert not A[later].any()
+    assert (z[later] <= 3.0).all()
+    assert al.events["reference_inconsistent"] >= 1
+    assert al.summary()["reference_consistent"] is False
 
 
 def test_parked_mems_levels_but_never_claims_a_heading():

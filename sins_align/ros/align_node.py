@@ -330,6 +330,12 @@ def make_node_class():
                 self._warn_rejected(event.value)
             elif event.kind == "restarted":
                 self.get_logger().warning(f"alignment restarted: {event.value}")
+            elif event.kind == "inconsistent":
+                self.get_logger().error(
+                    f"the velocity reference contradicts the IMU (mean NIS {event.value:.0f} "
+                    f"per degree of freedom, honest ~1): check velocity_frame (enu/ned), "
+                    f"lever_arm, velocity_latency and velocity_noise; the attitude is "
+                    f"published as unknown meanwhile")
 
         def _warn_rejected(self, reason: str):
             now = time.monotonic()

@@ -171,6 +171,11 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
     msg = MOTION_STATE_TEXT.get(st, STATE_TEXT.get(st, st))
     if st != "waiting" and not est.heading_observable:
         msg += " (heading not observable yet: it needs horizontal acceleration or turns)"
+    if not getattr(est, "reference_consistent", True):
+        level = ERROR
+        msg = (f"velocity reference contradicts the IMU (mean NIS {est.nis:.0f}): check "
+               f"velocity_frame (enu/ned), lever_arm, velocity_latency, velocity_noise; "
+               f"attitude published as unknown")
     std = est.std_enu_deg
     bg, ba = bias_estimates(est)
     v = np.asarray(est.velocity, dtype=float)
@@ -181,6 +186,7 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
         ("state", st),
         ("aligned", str(bool(est.aligned)).lower()),
         ("heading_observable", str(bool(est.heading_observable)).lower()),
+        ("reference_consistent", str(bool(getattr(est, "reference_consistent", True))).lower()),
         ("std_east_deg", f"{std[0]:.6f}"),
         ("std_north_deg", f"{std[1]:.6f}"),
         ("std_up_deg", f"{std[2]:.6f}"),

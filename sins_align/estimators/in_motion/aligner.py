@@ -35,7 +35,7 @@ import numpy as np
 
 from sins_align.core.earth import normal_gravity
 from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rpy,
-                                      so3_left_jacobian_inv)
+                                      so3_left_jacobian_inv, so3_log)
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion.config import MotionConfig
@@ -140,6 +140,10 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._replaying = False
         self.time_to_aligned: float | None = None
         self.heading_observable = False
+        #: False while the velocity reference contradicts the IMU (config.inconsistent_nis):
+        #: the attitude is then published as unknown
+        self.reference_consistent = True
+        self._inconsistent_until = -math.inf
         if self._aligned:
             self._aligned = False
             self._emit("aligned", last, False)
@@ -161,7 +165,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         (while the bank of hypotheses runs, the Gaussian sum's about the published one) plus
         the jitter the gyro's high-frequency content puts on the attitude
         (:attr:`jitter_covariance`). Before the start: pi^2 on each axis (nothing known)."""
-        if self.ekf is None:
+        if self.ekf is None or not self.reference_consistent:
             return np.eye(3) * math.pi ** 2
         ekf = self.ekf
         jit = self._jitter.covariance                   # body axes
@@ -235,7 +239,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         """rad, rotation vector in IMU axes: the estimated rotation of the vehicle's axes
         against the IMU's (the vehicle's side is ``exp(eps x) e_nhc_axis``; zeros when not
         estimated, ``nhc_mount_std_deg`` 0)."""
-        return np.zeros(3) if self.ekf is None else self.ekf.corrected(self._best)[7]
+        return (np.zeros(3) if self.ekf is None
+                else so3_log(self.ekf.corrected(self._best)[7]))
 
     @property
     def nis(self) -> float:
@@ -828,10 +833,20 @@ class MotionAligner(EventSource, AttitudeReadout):
         c = self.config
         if self.ekf is None:
             return
+        nis = self.nis
+        if self._nis_sum[1] >= 30 and nis > c.inconsistent_nis:
+            # the reference contradicts the IMU (a wrong frame, lever arm, latency, noise):
+            # nothing published from the filter can be trusted for a while
+            if self.reference_consistent:
+                self.events["reference_inconsistent"] += 1
+                self._emit("inconsistent", stamp, float(nis))
+            self._inconsistent_until = (stamp if stamp is not None else self.t_last) \
+                + c.inconsistent_memory
+        t_now = stamp if stamp is not None else self.t_last
+        self.reference_consistent = bool(t_now is None or t_now > self._inconsistent_until)
         std = self.std_enu_deg
         self.heading_observable = bool(std[2] <= c.observable_heading_std_deg)
-        nis = self.nis
-        now = bool(self.heading_observable and self.ekf.K == 1
+        now = bool(self.heading_observable and self.ekf.K == 1 and self.reference_consistent
                    and max(std[0], std[1]) <= c.aligned_level_std_deg
                    and std[2] <= c.aligned_heading_std_deg
                    and (math.isnan(nis) or nis <= c.aligned_nis))
@@ -857,6 +872,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             "rejected": dict(self.rejected),
             "events": dict(self.events),
             "heading_observable": self.heading_observable,
+            "reference_consistent": self.reference_consistent,
             "heading_hypotheses": self.hypotheses,
             "orientation_xyzw": self.quaternion.tolist(),
             "rpy_deg": self.rpy_deg.tolist(),

@@ -105,6 +105,13 @@ class MotionConfig:
         observable and the recent innovations consistent).
     aligned_nis : mean NIS per degree of freedom over the last ``aligned_nis_window`` s above
         which the flag is held down.
+    inconsistent_nis : that mean above which the velocity reference contradicts the IMU (a
+        wrong ``velocity_frame``, lever arm or latency, a reference far noisier than said;
+        an honest filter's stays near 1: at most 1.33 over the benchmark's scenarios): the
+        attitude is then published as unknown (pi^2 rad^2 on each axis, as before the start)
+        and ``reference_consistent`` is False, until ``inconsistent_memory`` s after the last
+        window above it (velocities given in NED to a filter told ENU agree with a heading
+        60 deg off while the car drives straight, and contradict it in every turn).
     """
 
     latitude_deg: float
@@ -148,6 +155,8 @@ class MotionConfig:
     aligned_heading_std_deg: float = 2.0
     aligned_nis: float = 3.0
     aligned_nis_window: float = 10.0
+    inconsistent_nis: float = 10.0
+    inconsistent_memory: float = 60.0
 
     def __post_init__(self):
         if isinstance(self.specs, str):
@@ -179,6 +188,7 @@ class MotionConfig:
         if not (-90.0 < self.latitude_deg < 90.0):
             raise ValueError(f"latitude_deg must be within (-90, 90), got {self.latitude_deg!r}")
         positive = ("velocity_noise", "nhc_noise", "nhc_period", "init_time",
+                    "inconsistent_nis", "inconsistent_memory",
                     "attitude_noise_deg", "nis_inflate", "max_gap", "max_angular_rate",
                     "specific_force_max", "observable_heading_std_deg",
                     "aligned_level_std_deg", "aligned_heading_std_deg", "aligned_nis",

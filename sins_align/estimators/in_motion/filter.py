@@ -115,7 +115,8 @@ IPHI, INU, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 #: x)``, rad, master axes), the gyro scale factors (``gyro = (1 + s) w + b_g``, per axis)
 #: and the accelerometer scale factors (``accel = (1 + s_a) f + b_a``), the lever arm of the
 #: non-holonomic point (body, m) and the rotation of the vehicle's axes against the IMU's
-#: (``nhc_mount``, rad, IMU axes: the vehicle's side is ``exp(eps x) e_axis``; see
+#: (``nhc_mount``, kept as the rotation matrix ``exp(eps x)``, eps in IMU axes: the
+#: vehicle's side is its column ``e_axis``; see
 #: :meth:`InvariantEKF.update_lateral`), and one state: the velocity reference's latency
 #: (``latency``, s: its stamps are that much later than the instant it measured; see
 #: :meth:`InvariantEKF.velocity_model`)
@@ -322,7 +323,8 @@ class InvariantEKF:
         self.sf = np.zeros((K, 3))            # gyro scale factors (estimated with i_sf)
         self.sa = np.zeros((K, 3))            # accelerometer scale factors (with i_sa)
         self.nhc_lever = np.tile(np.asarray(nhc_lever_arm, dtype=float).reshape(3), (K, 1))
-        self.nhc_mount = np.zeros((K, 3))     # vehicle axes against the IMU's (with i_nhm)
+        #: the vehicle's axes against the IMU's, (K, 3, 3) rotations (estimated with i_nhm)
+        self.nhc_mount = np.tile(_I3, (K, 1, 1))
         self.latency = np.zeros((K, 1))       # velocity reference latency, s (with i_lat)
         self.dx = np.zeros((K, self.n))       # error estimate not yet fed back (see feedback)
         #: None: full reset after every update; else a callable giving, for the time since
@@ -703,7 +705,8 @@ class InvariantEKF:
 
     def corrected(self, i: int):
         """Filter i's state with the error estimate not yet fed back removed: (C, v, bg, ba,
-        lever, mount, nhc_lever, nhc_mount). With full feedback that is the state itself."""
+        lever, mount, nhc_lever, nhc_mount (a rotation matrix)). With full feedback that is
+        the state itself."""
         dx = self.dx[i]
         if not dx.any():           # (full reset: nothing carried; the same values, copied)
             return (self.C[i].copy(), self.v[i].copy(), self.bg[i].copy(), self.ba[i].copy(),
@@ -720,7 +723,7 @@ class InvariantEKF:
         if self.i_nhl is not None:
             out[6] = out[6] - dx[self.i_nhl]
         if self.i_nhm is not None:
-            out[7] = _rotated(out[7][None], dx[self.i_nhm][None])[0]
+            out[7] = so3_exp(-dx[self.i_nhm]) @ out[7]
         return tuple(out)
 
     def feedback(self, dx) -> None:
@@ -743,7 +746,7 @@ class InvariantEKF:
         if self.i_nhl is not None:
             self.nhc_lever = self.nhc_lever - dx[:, self.i_nhl]
         if self.i_nhm is not None:
-            self.nhc_mount = _rotated(self.nhc_mount, dx[:, self.i_nhm])
+            self.nhc_mount = so3_exp(-dx[:, self.i_nhm]) @ self.nhc_mount
         if self.i_lat is not None:
             self.latency = self.latency - dx[:, self.i_lat]
 
@@ -774,7 +777,7 @@ class InvariantEKF:
         if self.i_nhl is not None:
             self.nhc_lever = (self.nhc_lever[0] - dx[self.i_nhl])[None]
         if self.i_nhm is not None:
-            self.nhc_mount = _rotated(self.nhc_mount, dx[self.i_nhm][None])
+            self.nhc_mount = np.dot(so3_exp(-dx[self.i_nhm]), self.nhc_mount[0])[None]
         if self.i_lat is not None:
             self.latency = (self.latency[0] - dx[self.i_lat])[None]
 
@@ -910,7 +913,7 @@ class InvariantEKF:
         if self.i_nhm is None:
             return self._update_side(axis, None, sigma, nis_limit, slip, slip_updates,
                                      consider_heading)
-        u = so3_exp(self.nhc_mount)[:, :, axis]                         # (K, 3), IMU axes
+        u = self.nhc_mount[:, :, axis]                                  # (K, 3), IMU axes
         return self._update_side(axis, u, sigma, nis_limit, slip, slip_updates,
                                  consider_heading)
 
@@ -927,11 +930,13 @@ class InvariantEKF:
             def side_v(x):                  # the side's component of (K, 3) vectors
                 return x[:, axis]
         else:
+            uT = u[:, None, :]
+
             def side(M):
-                return np.einsum("ki,kij->kj", u, M)
+                return (uT @ M)[:, 0]
 
             def side_v(x):
-                return np.einsum("ki,ki->k", u, x)
+                return (uT @ x[:, :, None])[:, 0, 0]
         H = np.zeros((self.K, 1, self.n))
         H[:, 0, IPHI] = -side(_skew(vb))
         H[:, 0, INU] = -(_I3[axis] if u is None else u)
@@ -953,7 +958,8 @@ class InvariantEKF:
             if self.i_sf is not None:
                 H[:, 0, self.i_sf] = side(-_skew(lever) * self.w_last[:, None, :])
         if u is not None:
-            # the side's error (see _rotated): u_true = exp(-d x) u, so its velocity
+            # the side's error (a rotation on the left of the estimate: the feedback
+            # composes exp(-d x) R): u_true = exp(-d x) u, so its velocity
             # component changes by -d . (u x v_b) to first order
             H[:, 0, self.i_nhm] = -_cross(u, vb)
         return self._apply(-side_v(vb)[:, None], H, R, nis_limit, consider_heading)
@@ -970,13 +976,6 @@ class InvariantEKF:
         if self.i_mnt is not None:
             H[:, :, self.i_mnt] = _I3
         return self._apply(y, H, np.asarray(R, dtype=float), nis_limit)
-
-
-def _rotated(eps, d):
-    """The ``nhc_mount`` rotation vectors eps (K, 3) with their errors d (K, 3) removed:
-    ``log(exp(-d x) exp(eps x))`` (the error is a rotation on the left of the estimate's:
-    the side ``u = exp(eps x) e_axis`` is then off by ``d x u`` exactly to first order)."""
-    return so3_log(so3_exp(-d) @ so3_exp(eps))
 
 
 def sample_transition(ekf: InvariantEKF, dt: float, gyro, accel) -> np.ndarray:
