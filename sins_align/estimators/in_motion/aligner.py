@@ -46,7 +46,7 @@ from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, Invaria
 from sins_align.estimators.in_motion.gaps import bridge_gaps
 from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
 from sins_align.estimators.in_motion.stillness import WINDOW as STILL_WINDOW
-from sins_align.estimators.in_motion.stillness import (gyrocompass_limit, is_parked,
+from sins_align.estimators.in_motion.stillness import (gyrocompass_limit, imu_at_rest,
                                                       reference_still)
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 
@@ -131,6 +131,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._history: deque = deque()           # accepted samples (t, gyro, accel) arrays
         self.nominal_dt: float | None = None     # s, the median interval at the start
         self._jitter = JitterMonitor()
+        self._rest_at: tuple | None = None      # (stamp, IMU at rest there) of _parked
         self._vjitter = VelocityJitter(c.max_measurement_lag + _HISTORY_MARGIN
                                        + c.velocity_averaging + 1.0)
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
@@ -729,10 +730,14 @@ class MotionAligner(EventSource, AttitudeReadout):
         lat = float(ekf.lat[b])
         if self._compass_limit(lat) ** 2 < heading_var:
             return False
-        t, w, f = self._vjitter.before(t_now, STILL_WINDOW)
-        return is_parked(payload[0], payload[1], t, w, f, self.config.specs,
-                         float(normal_gravity(lat, float(ekf.h[b]))),
-                         self.nominal_dt or 0.01)
+        # the samples' part, once per sample (a velocity and a non-holonomic update often
+        # share it; it depends on the stamps only, so a rewind finds the same)
+        if self._rest_at is None or self._rest_at[0] != t_now:
+            t, w, f = self._vjitter.before(t_now, STILL_WINDOW)
+            self._rest_at = (t_now, imu_at_rest(t, w, f, self.config.specs,
+                                                float(normal_gravity(lat, float(ekf.h[b]))),
+                                                self.nominal_dt or 0.01))
+        return self._rest_at[1]
 
     def _compass_limit(self, lat: float) -> float:
         """rad: the heading std gyrocompassing can reach standing (the specs' gyro bias, its

@@ -41,7 +41,7 @@ import numpy as np
 
 from sins_align.core.earth import OMEGA_IE
 
-__all__ = ["WINDOW", "gyrocompass_limit", "is_parked", "reference_still"]
+__all__ = ["WINDOW", "gyrocompass_limit", "imu_at_rest", "is_parked", "reference_still"]
 
 #: s of IMU samples the detector looks at, before the velocity update's sample
 WINDOW = 1.0
@@ -83,8 +83,12 @@ def is_parked(z, R, t, w, f, specs, gravity: float, nominal_dt: float) -> bool:
     it, stamps ``t`` (m,), rates ``w`` and specific forces ``f`` (m, 3); ``specs`` the IMU's
     :class:`~sins_align.core.specs.SensorSpecs`; ``gravity`` m/s^2 there; ``nominal_dt`` s,
     the sample interval."""
-    if not reference_still(z, R):
-        return False
+    return reference_still(z, R) and imu_at_rest(t, w, f, specs, gravity, nominal_dt)
+
+
+def imu_at_rest(t, w, f, specs, gravity: float, nominal_dt: float) -> bool:
+    """The IMU part of :func:`is_parked` (the same arguments): what depends on the samples
+    only."""
     n = len(t)
     if n < _MIN_SAMPLES or float(t[-1] - t[0]) < 0.8 * WINDOW:
         return False
