@@ -423,7 +423,11 @@ def test_late_measurements_equal_measurements_given_in_time():
     # each update counted once, however often a rewind applied it again
     given = np.count_nonzero((r.gnss_t > a.t_start) & (r.gnss_t <= r.t[n]))
     assert a.events["velocity"] == given > 300
-    for key in ("velocity", "velocity_inflated", "heading_acquired", "hypotheses_merged"):
+    # (the parked updates too: the car stands its first 10 s; the detector's decisions
+    # depend on the stamps only, not on when the measurements came)
+    assert a.events["velocity_parked"] > 50
+    for key in ("velocity", "velocity_inflated", "velocity_parked", "heading_acquired",
+                "hypotheses_merged"):
         assert b.events[key] == a.events[key], key
 
 
@@ -437,6 +441,8 @@ def test_a_ground_vehicle_counts_each_constraint_once_through_rewinds():
     assert b.events["rewinds"] > 100
     assert a.events["nhc"] > 100 and b.events["nhc"] == a.events["nhc"]
     assert b.events["velocity"] == a.events["velocity"]
+    assert a.events["nhc_parked"] > 50 and b.events["nhc_parked"] == a.events["nhc_parked"]
+    assert b.events["velocity_parked"] == a.events["velocity_parked"]
 
 
 def test_an_imu_gap_restarts_with_the_measurements_given_ahead():

@@ -45,6 +45,9 @@ from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, Invaria
                                                     NoiseModel, extra_size)
 from sins_align.estimators.in_motion.gaps import bridge_gaps
 from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
+from sins_align.estimators.in_motion.stillness import WINDOW as STILL_WINDOW
+from sins_align.estimators.in_motion.stillness import (gyrocompass_limit, imu_at_rest,
+                                                      reference_still)
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
 
 __all__ = ["MotionAligner", "MOTION_REJECT_REASONS", "MOTION_STATES"]
@@ -70,8 +73,8 @@ HYPOTHESIS_SPREAD = 0.6
 #: s of history kept beyond max_measurement_lag (for the rewinds)
 _HISTORY_MARGIN = 0.2
 #: events of the updates a rewind re-applies: the snapshots keep their counts
-_REPLAYED_EVENTS = ("velocity", "velocity_inflated", "attitude", "nhc", "hypotheses_merged",
-                    "heading_acquired")
+_REPLAYED_EVENTS = ("velocity", "velocity_inflated", "velocity_parked", "attitude", "nhc",
+                    "nhc_parked", "hypotheses_merged", "heading_acquired")
 #: a heading guess with a std above this (deg) is no guess: the bank of hypotheses starts
 HYPOTHESIS_MAX_STD_DEG = 30.0
 #: hypotheses whose weight falls below this are dropped
@@ -128,6 +131,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._history: deque = deque()           # accepted samples (t, gyro, accel) arrays
         self.nominal_dt: float | None = None     # s, the median interval at the start
         self._jitter = JitterMonitor()
+        self._rest_at: tuple | None = None      # (stamp, IMU at rest there) of _parked
         self._vjitter = VelocityJitter(c.max_measurement_lag + _HISTORY_MARGIN
                                        + c.velocity_averaging + 1.0)
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
@@ -661,10 +665,14 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self._apply(item, t_now)
                 self._applied.append(item)
             if self._next_nhc is not None and self._next_nhc <= t_now:
+                parked = self._parked_at_nhc(t_now)
                 self._weigh(t_now, *self.ekf.update_lateral(
                     c.nhc_axis, c.nhc_noise, c.nis_inflate, slip=c.nhc_slip_deg * DEG,
-                    slip_updates=max(1.0, c.nhc_slip_time / c.nhc_period)), 1)
+                    slip_updates=max(1.0, c.nhc_slip_time / c.nhc_period),
+                    consider_heading=parked), 1)
                 self.events["nhc"] += 1
+                if parked:
+                    self.events["nhc_parked"] += 1
                 self._next_nhc = t_now + c.nhc_period
             if e < n:
                 self._snapshot(t_now)
@@ -693,8 +701,11 @@ class MotionAligner(EventSource, AttitudeReadout):
                 acc = ekf.C[b] @ f_now
                 acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
                 z = z + (t_now - ts) * acc
-            nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate)
+            parked = self._parked(t_now, payload)
+            nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate, consider_heading=parked)
             self.events["velocity"] += 1
+            if parked:
+                self.events["velocity_parked"] += 1
             if nis[self._best] > self.config.nis_inflate:
                 self.events["velocity_inflated"] += 1
             self._weigh(t_now, nis, ll, int(np.isfinite(payload[0]).sum()))
@@ -705,6 +716,44 @@ class MotionAligner(EventSource, AttitudeReadout):
             self._weigh(t_now, nis, ll, 3)
         if not self._replaying:
             self._evaluate(t_now)
+
+    def _parked(self, t_now, payload) -> bool:
+        """Is the heading a consider state of this velocity update? While the vehicle stands
+        (:func:`~sins_align.estimators.in_motion.stillness.is_parked`) and gyrocompassing
+        cannot improve on the heading the best filter holds (its heading std at or below
+        :meth:`_compass_limit`): see :mod:`~sins_align.estimators.in_motion.stillness`."""
+        if not reference_still(*payload):             # (the cheapest test first)
+            return False
+        ekf, b = self.ekf, self._best
+        up = ekf.C[b, 2]                        # the up axis in body axes
+        heading_var = float(up @ ekf.P[b, IPHI, IPHI] @ up)
+        lat = float(ekf.lat[b])
+        if self._compass_limit(lat) ** 2 < heading_var:
+            return False
+        # the samples' part, once per sample (a velocity and a non-holonomic update often
+        # share it; it depends on the stamps only, so a rewind finds the same)
+        if self._rest_at is None or self._rest_at[0] != t_now:
+            t, w, f = self._vjitter.before(t_now, STILL_WINDOW)
+            self._rest_at = (t_now, imu_at_rest(t, w, f, self.config.specs,
+                                                float(normal_gravity(lat, float(ekf.h[b]))),
+                                                self.nominal_dt or 0.01))
+        return self._rest_at[1]
+
+    def _compass_limit(self, lat: float) -> float:
+        """rad: the heading std gyrocompassing can reach standing (the specs' gyro bias, its
+        wander included, over the Earth rate's horizontal component; not the filter's own
+        bias std, which standing still only learns together with the heading)."""
+        s = self.config.specs
+        return gyrocompass_limit(math.hypot(s.gyro_bias, s.gyro_bias_instability), lat)
+
+    def _parked_at_nhc(self, t_now) -> bool:
+        """:meth:`_parked` for a non-holonomic update at t_now: standing, the constraint's
+        heading regressor (the estimated body velocity) is noise too. The velocity tested
+        is the best filter's estimate with its own covariance (what the references applied
+        so far say, whatever their rate and the order they came in)."""
+        ekf, b = self.ekf, self._best
+        C = ekf.C[b]
+        return self._parked(t_now, (ekf.v[b], C @ ekf.P[b, INU, INU] @ C.T))
 
     def _weigh(self, t, nis, loglik, dof):
         """After an update: the hypotheses' weights, pruning, collapse; the NIS record."""

@@ -616,13 +616,21 @@ class InvariantEKF:
             self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
 
     # ---------------------------------------------------------------- updates
-    def _apply(self, y, H, R, nis_limit=None):
+    def _apply(self, y, H, R, nis_limit=None, consider_heading=False):
         """Kalman update of every filter: residuals y (K, d), models H (K, d, n), noise R
         (d, d) or (K, d, d); feeds the estimates back. Returns (NIS per degree of freedom
         before any inflation (K,), log-likelihood of y (K,): zeros for a single filter, which
-        has no other to be weighed against)."""
+        has no other to be weighed against).
+
+        consider_heading: a Schmidt (consider) update of the heading: the gain loses its
+        component along the heading error direction (the navigation vertical in the error
+        state's body axes, ``a = C_hat^T u``: the heading error is ``-a . phi``), the other
+        states keep theirs, and the covariance takes the Joseph form of that gain, so the
+        heading variance ``a^T P_phi a`` is exactly what it was before the update (its
+        correlations with the other states are updated)."""
         if self.K == 1:
-            return self._apply_one(y[0], H[0], R if R.ndim == 2 else R[0], nis_limit)
+            return self._apply_one(y[0], H[0], R if R.ndim == 2 else R[0], nis_limit,
+                                   consider_heading)
         P = self.P
         PHT = P @ _mT(H)
         S = H @ PHT + R
@@ -641,11 +649,18 @@ class InvariantEKF:
             Sinv = Sinv / a[:, None, None]
             Sy = Sy / a[:, None]
         Kg = PHT @ Sinv
+        if consider_heading:
+            a = self.C[:, 2, :]                                  # (K, 3): C_hat^T u
+            Kg = Kg.copy()
+            Kg[:, IPHI] -= a[:, :, None] * np.einsum("ki,kid->kd", a, Kg[:, IPHI])[:, None]
         IKH = self._eye - Kg @ H
         P = IKH @ P @ _mT(IKH) + Kg @ R @ _mT(Kg)
         self.P = 0.5 * (P + _mT(P))
         if self.schedule is None:
-            self.feedback((PHT @ Sy[..., None])[..., 0])
+            if consider_heading:
+                self.feedback(np.einsum("kid,kd->ki", Kg, y))
+            else:
+                self.feedback((PHT @ Sy[..., None])[..., 0])
         else:
             # the error estimate carried on: the residual about it, then its scheduled part
             # fed back (seed 002's LQR feedback)
@@ -656,7 +671,7 @@ class InvariantEKF:
         self.t_since_feedback = 0.0
         return nis, loglik
 
-    def _apply_one(self, y, H, R, nis_limit):
+    def _apply_one(self, y, H, R, nis_limit, consider_heading=False):
         """:meth:`_apply` of a bank of one filter: y (d,), H (d, n), R (d, d); the same
         arithmetic on 2-D arrays."""
         P = self.P[0]
@@ -671,11 +686,15 @@ class InvariantEKF:
             Sinv = Sinv / a
             Sy = Sy / a
         Kg = PHT @ Sinv
+        if consider_heading:
+            a = self.C[0, 2]                                     # C_hat^T u
+            Kg = Kg.copy()
+            Kg[IPHI] -= np.outer(a, a @ Kg[IPHI])
         IKH = self._eye - Kg @ H
         P = IKH @ P @ IKH.T + Kg @ R @ Kg.T
         self.P = (0.5 * (P + P.T))[None]
         if self.schedule is None:
-            self._feedback_one(PHT @ Sy)
+            self._feedback_one(Kg @ y if consider_heading else PHT @ Sy)
         else:
             dx = self.dx[0] + Kg @ (y - H @ self.dx[0])
             u = self.schedule(self.t_since_feedback) @ dx
@@ -857,22 +876,25 @@ class InvariantEKF:
             dx[:, INU] += np.einsum("kij,kj->ki", D, dx[:, IPHI])
             self.dx = dx
 
-    def update_velocity(self, z, R, nis_limit=None):
+    def update_velocity(self, z, R, nis_limit=None, consider_heading=False):
         """Velocity of the antenna, ENU: (3,) for every filter, NaN components not measured,
         R (3, 3); or (K, 3), each filter its own (a component NaN in every row or in none),
-        and R (3, 3) or (K, 3, 3).
+        and R (3, 3) or (K, 3, 3). ``consider_heading``: the heading is a consider state of
+        this update (:meth:`_apply`; what a standing vehicle whose gyro cannot gyrocompass
+        asks for: there the measured rates and forces hold only noise, and a transition built
+        on them turns velocity updates into heading information that is not there).
         Returns (NIS per dof, log-likelihood), each (K,)."""
         z = np.asarray(z, dtype=float)
         z_hat, H = self.velocity_model()
         R = np.asarray(R, dtype=float)
         ok = np.isfinite(z) if z.ndim == 1 else np.isfinite(z).all(axis=0)
         if ok.all():
-            return self._apply(z - z_hat, H, R, nis_limit)
+            return self._apply(z - z_hat, H, R, nis_limit, consider_heading)
         Rk = R[np.ix_(ok, ok)] if R.ndim == 2 else R[:, ok][:, :, ok]
-        return self._apply((z - z_hat)[:, ok], H[:, ok], Rk, nis_limit)
+        return self._apply((z - z_hat)[:, ok], H[:, ok], Rk, nis_limit, consider_heading)
 
     def update_lateral(self, axis: int, sigma: float, nis_limit=None, slip: float = 0.0,
-                       slip_updates: float = 1.0):
+                       slip_updates: float = 1.0, consider_heading=False):
         """Non-holonomic constraint: the velocity of the point at ``nhc_lever`` (body axes,
         from the IMU: a car's rear-axle centre) has no component along the vehicle's side
         (+- sigma). That velocity is ``C^T v + w_nb x l``, the rate term as the antenna's of
@@ -886,13 +908,17 @@ class InvariantEKF:
         (a bound). In a turn the lateral velocity is not zero but about ``slip a_lat u`` (u
         the forward speed), for the whole turn: the noise gets that, times the square root of
         ``slip_updates`` (how many updates it lasts), so that the updates of one turn together
-        claim no more than one. Each filter of the bank takes its own speed and rate."""
+        claim no more than one. Each filter of the bank takes its own speed and rate.
+        ``consider_heading``: as :meth:`update_velocity`'s (a parked vehicle)."""
         if self.i_nhm is None:
-            return self._update_side(axis, None, sigma, nis_limit, slip, slip_updates)
+            return self._update_side(axis, None, sigma, nis_limit, slip, slip_updates,
+                                     consider_heading)
         u = self.nhc_mount[:, :, axis]                                  # (K, 3), IMU axes
-        return self._update_side(axis, u, sigma, nis_limit, slip, slip_updates)
+        return self._update_side(axis, u, sigma, nis_limit, slip, slip_updates,
+                                 consider_heading)
 
-    def _update_side(self, axis, u, sigma, nis_limit, slip, slip_updates):
+    def _update_side(self, axis, u, sigma, nis_limit, slip, slip_updates,
+                     consider_heading=False):
         """:meth:`update_lateral` along the IMU's ``axis`` (u None) or along the unit vectors
         u (K, 3) of the vehicle's side in IMU axes (the ``nhc_mount`` states)."""
         C = self.C
@@ -936,7 +962,7 @@ class InvariantEKF:
             # composes exp(-d x) R): u_true = exp(-d x) u, so its velocity
             # component changes by -d . (u x v_b) to first order
             H[:, 0, self.i_nhm] = -_cross(u, vb)
-        return self._apply(-side_v(vb)[:, None], H, R, nis_limit)
+        return self._apply(-side_v(vb)[:, None], H, R, nis_limit, consider_heading)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
         """Attitude of a master INS: ``C_ref = C exp(-mu x) exp(n x)``, with ``mu`` the
