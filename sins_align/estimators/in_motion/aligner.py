@@ -38,6 +38,7 @@ from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rp
                                       so3_left_jacobian_inv)
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
+from sins_align.estimators.in_motion.clock import SampleClock
 from sins_align.estimators.in_motion.config import MotionConfig
 from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFeedback,
                                                       lqr_gain)
@@ -117,6 +118,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._logw = np.zeros(1)
         self._best = 0
         self.t_last = None
+        self._stamp_last: float | None = None   # the last accepted stamp (t_last: its instant)
+        self._clock = SampleClock()
         self.t_first: float | None = None
         self.last_reject: str | None = None
         self.samples_used = 0
@@ -260,7 +263,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             self._feed(t[idx], w[idx], f[idx])
         if jump is None:
             return len(idx)
-        gap = float(t[jump]) - self.t_last
+        gap = float(t[jump]) - self._stamp_last
         self._reject("time_jump", float(t[jump]))
         # the measurements not applied yet are still good for the new start (the one it
         # takes is weighed by its age there); a caller that gave them ahead loses nothing
@@ -286,7 +289,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         reason[finite & (fn > c.specific_force_max)] = "specific_force_out_of_range"
         reason[(reason == "") & (wn > c.max_angular_rate)] = "rate_too_high"
         good = reason == ""
-        last = -math.inf if self.t_last is None else self.t_last
+        last = -math.inf if self._stamp_last is None else self._stamp_last
         prior = np.maximum.accumulate(np.concatenate(([last], np.where(good, t, -np.inf)[:-1])))
         dup = good & (t == prior)
         back = good & (t < prior)
@@ -317,7 +320,7 @@ class MotionAligner(EventSource, AttitudeReadout):
                 reason = "specific_force_out_of_range"
             elif math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) > c.max_angular_rate:
                 reason = "rate_too_high"
-        last = -math.inf if self.t_last is None else self.t_last
+        last = -math.inf if self._stamp_last is None else self._stamp_last
         if not reason:
             if t == last:
                 reason = "duplicate_stamp"
@@ -330,7 +333,10 @@ class MotionAligner(EventSource, AttitudeReadout):
         return np.ones(1, dtype=bool), jump
 
     def _feed(self, t, w, f):
-        """Accepted samples, in order."""
+        """Accepted samples, in order: from here on, each at its instant on the IMU's clock
+        (clock.py: the stamp itself unless the stamps jitter)."""
+        self._stamp_last = float(t[-1])
+        t = self._clock.times(t)
         if self.t_first is None:
             self.t_first = float(t[0])
         self._jitter.add(t, w)
