@@ -3,7 +3,9 @@
 The stream around :class:`~sins_align.estimators.in_motion.filter.InvariantEKF`, behind the
 interface every estimator has (:mod:`sins_align.estimators`):
 
-- IMU samples (:meth:`MotionAligner.update`, one or a block) are checked and propagated;
+- IMU samples (:meth:`MotionAligner.update`, one or a block) are checked and propagated,
+  each at its instant on the IMU's steady clock (the stamp itself, unless the stamps
+  jitter: :mod:`~sins_align.estimators.in_motion.clock`; ``t_last`` is the last instant);
 - measurements (:meth:`~MotionAligner.add_velocity`, :meth:`~MotionAligner.add_attitude`) are
   applied at their own stamps: one stamped ahead of the IMU waits until the IMU reaches it;
   one stamped behind (GNSS velocity arrives ~0.1 s after its stamp) makes the filter go back
