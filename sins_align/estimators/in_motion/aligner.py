@@ -3,7 +3,9 @@
 The stream around :class:`~sins_align.estimators.in_motion.filter.InvariantEKF`, behind the
 interface every estimator has (:mod:`sins_align.estimators`):
 
-- IMU samples (:meth:`MotionAligner.update`, one or a block) are checked and propagated;
+- IMU samples (:meth:`MotionAligner.update`, one or a block) are checked and propagated,
+  each at its instant on the IMU's steady clock (the stamp itself, unless the stamps
+  jitter: :mod:`~sins_align.estimators.in_motion.clock`; ``t_last`` is the last instant);
 - measurements (:meth:`~MotionAligner.add_velocity`, :meth:`~MotionAligner.add_attitude`) are
   applied at their own stamps: one stamped ahead of the IMU waits until the IMU reaches it;
   one stamped behind (GNSS velocity arrives ~0.1 s after its stamp) makes the filter go back
@@ -38,6 +40,7 @@ from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rp
                                       so3_left_jacobian_inv, so3_log)
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
+from sins_align.estimators.in_motion.clock import SampleClock
 from sins_align.estimators.in_motion.config import MotionConfig
 from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFeedback,
                                                       lqr_gain)
@@ -120,6 +123,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._logw = np.zeros(1)
         self._best = 0
         self.t_last = None
+        self._stamp_last: float | None = None   # the last accepted stamp (t_last: its instant)
+        self._clock = SampleClock()
         self.t_first: float | None = None
         self.last_reject: str | None = None
         self.samples_used = 0
@@ -283,7 +288,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             self._feed(t[idx], w[idx], f[idx])
         if jump is None:
             return len(idx)
-        gap = float(t[jump]) - self.t_last
+        gap = float(t[jump]) - self._stamp_last
         self._reject("time_jump", float(t[jump]))
         # the measurements not applied yet are still good for the new start (the one it
         # takes is weighed by its age there); a caller that gave them ahead loses nothing
@@ -309,7 +314,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         reason[finite & (fn > c.specific_force_max)] = "specific_force_out_of_range"
         reason[(reason == "") & (wn > c.max_angular_rate)] = "rate_too_high"
         good = reason == ""
-        last = -math.inf if self.t_last is None else self.t_last
+        last = -math.inf if self._stamp_last is None else self._stamp_last
         prior = np.maximum.accumulate(np.concatenate(([last], np.where(good, t, -np.inf)[:-1])))
         dup = good & (t == prior)
         back = good & (t < prior)
@@ -340,7 +345,7 @@ class MotionAligner(EventSource, AttitudeReadout):
                 reason = "specific_force_out_of_range"
             elif math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) > c.max_angular_rate:
                 reason = "rate_too_high"
-        last = -math.inf if self.t_last is None else self.t_last
+        last = -math.inf if self._stamp_last is None else self._stamp_last
         if not reason:
             if t == last:
                 reason = "duplicate_stamp"
@@ -353,7 +358,10 @@ class MotionAligner(EventSource, AttitudeReadout):
         return np.ones(1, dtype=bool), jump
 
     def _feed(self, t, w, f):
-        """Accepted samples, in order."""
+        """Accepted samples, in order: from here on, each at its instant on the IMU's clock
+        (clock.py: the stamp itself unless the stamps jitter)."""
+        self._stamp_last = float(t[-1])
+        t = self._clock.times(t)
         if self.t_first is None:
             self.t_first = float(t[0])
         self._jitter.add(t, w)

@@ -49,9 +49,11 @@ they cannot say (:func:`bridge_gaps`):
   bridged at all).
 
 A hole is an interval above :data:`GAP_RATIO` times the nominal interval (the median of the
-intervals the filter started with). Everything depends on the stamps and the samples only,
-so a stream fed sample by sample, in blocks, or run again after a late measurement gives the
-same bridges.
+intervals the filter started with), between the samples' instants (the stamps' own unless
+they jitter: then those of a steady clock fitted to them, whose intervals across a hole are
+a whole number of nominal ones; :mod:`~sins_align.estimators.in_motion.clock`).
+Everything depends on the stamps and the samples only, so a stream fed sample by sample, in
+blocks, or run again after a late measurement gives the same bridges.
 """
 from __future__ import annotations
 
