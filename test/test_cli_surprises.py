@@ -154,9 +154,10 @@ def _run_and_signal(argv, workdir: Path, partial_glob: str, sig: int):
 
 @pytest.fixture(scope="module")
 def long_inputs(tmp_path_factory):
-    """A bag long enough that replay --output takes seconds, and a 100k-line CSV."""
+    """A bag long enough that replay --output takes seconds (an hour at 50 Hz: the block
+    path wrote 600 s of it in 0.3 s, before the test's signal came), and a 100k-line CSV."""
     d = tmp_path_factory.mktemp("long")
-    assert simulate.main(["--duration", "600", "--rate", "50", str(d / "long_bag")]) == 0
+    assert simulate.main(["--duration", "3600", "--rate", "50", str(d / "long_bag")]) == 0
     k = np.arange(100_000)
     np.savetxt(d / "long.csv", np.column_stack([k * 0.01, np.zeros((len(k), 5)),
                                                 np.full(len(k), 9.8)]),
