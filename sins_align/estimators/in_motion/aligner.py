@@ -136,8 +136,14 @@ class MotionAligner(EventSource, AttitudeReadout):
                                        + c.velocity_averaging + 1.0)
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
         self._next_nhc: float | None = None
-        self._nis: deque = deque()               # (t, nis per dof, dof)
-        self._nis_sum = [0.0, 0]                 # their sums of nis * dof and of dof
+        self._nis: deque = deque()               # (t, nis per dof, dof, that with R as given)
+        self._nis_sum = [0.0, 0, 0.0]            # their sums of nis * dof, dof, nis_ref * dof
+        # the velocity updates' innovations against R as given, whitened: (t, c, lam), with
+        # y^T (H P H^T + s R)^-1 y = sum(c / (lam + s)) (noise_scale)
+        self._vel_win: deque = deque()
+        #: the factor the velocity references' covariances are multiplied by (>= 1): what
+        #: the recent innovations say their noise is (:meth:`_noise_scale`)
+        self.noise_scale = 1.0
         self._replaying = False
         self.time_to_aligned: float | None = None
         self.heading_observable = False
@@ -245,10 +251,19 @@ class MotionAligner(EventSource, AttitudeReadout):
 
     @property
     def nis(self) -> float:
-        """Mean NIS per degree of freedom over the last ``aligned_nis_window`` s (nan: none)."""
+        """Mean NIS per degree of freedom over the last ``aligned_nis_window`` s (nan: none),
+        the velocity references' covariances scaled by ``noise_scale`` as applied."""
         if not self._nis:
             return math.nan
         return self._nis_sum[0] / self._nis_sum[1]
+
+    @property
+    def reference_nis(self) -> float:
+        """:attr:`nis` with the velocity references' covariances as given (not scaled): what
+        ``inconsistent_nis`` is compared with."""
+        if not self._nis:
+            return math.nan
+        return self._nis_sum[2] / self._nis_sum[1]
 
     @property
     def aligned(self) -> bool:
@@ -592,6 +607,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             bisect.insort(self._pending, a)
         self._nis = deque(x for x in self._nis if x[0] <= t_s)
         self._nis_resum()
+        self._vel_win = deque(x for x in self._vel_win if x[0] <= t_s)
         tt, ww, ff = self._history_after(t_s)
         self.events["rewinds"] += 1
         self._replaying = True
@@ -702,13 +718,18 @@ class MotionAligner(EventSource, AttitudeReadout):
                 acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
                 z = z + (t_now - ts) * acc
             parked = self._parked(t_now, payload)
-            nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate, consider_heading=parked)
+            s = self.noise_scale = self._noise_scale(t_now)
+            nis, ll = ekf.update_velocity(z, R if s == 1.0 else s * R, self.config.nis_inflate,
+                                          consider_heading=parked)
             self.events["velocity"] += 1
             if parked:
                 self.events["velocity_parked"] += 1
             if nis[self._best] > self.config.nis_inflate:
                 self.events["velocity_inflated"] += 1
-            self._weigh(t_now, nis, ll, int(np.isfinite(payload[0]).sum()))
+            ok = np.isfinite(payload[0])
+            c, lam = _whitened(*ekf.last_innovation(self._best), R[np.ix_(ok, ok)], s)
+            self._vel_win.append((t_now, c, lam))
+            self._weigh(t_now, nis, ll, int(ok.sum()), float(np.sum(c / (lam + 1.0))) / len(c))
         elif kind == "attitude":
             Cm, R = payload
             nis, ll = ekf.update_attitude(Cm, R, self.config.nis_inflate)
@@ -755,7 +776,50 @@ class MotionAligner(EventSource, AttitudeReadout):
         C = ekf.C[b]
         return self._parked(t_now, (ekf.v[b], C @ ekf.P[b, INU, INU] @ C.T))
 
-    def _weigh(self, t, nis, loglik, dof):
+    def _noise_scale(self, t_now) -> float:
+        """Covariance matching (Mehra): the factor s >= 1 on the velocity references' R for
+        which the velocity innovations of the last ``aligned_nis_window`` s would have had a
+        mean NIS per degree of freedom of 1: sum(y^T (H P H^T + s R)^-1 y) = sum(d), with each
+        innovation's H P H^T as it was and R as given (the scale in use does not enter: the
+        estimate does not feed on itself). 1 until they hold 30 degrees of freedom, at most
+        ``inconsistent_nis`` (beyond, the reference contradicts the IMU). The same in a
+        rewind: the innovations are those applied before t_now, within the window of t_now."""
+        w = self.config.aligned_nis_window
+        win = self._vel_win
+        keep = t_now - w - self.config.max_measurement_lag - _HISTORY_MARGIN - 1.0
+        while win and win[0][0] < keep:
+            win.popleft()
+        cs, ls = [], []
+        for t, c, lam in reversed(win):
+            if t < t_now - w:
+                break
+            cs.append(c)
+            ls.append(lam)
+        if not cs:
+            return 1.0
+        c, lam = np.concatenate(cs), np.concatenate(ls)
+        d = len(c)
+        if d < 30 or float(np.sum(c / (lam + 1.0))) <= d:
+            return 1.0
+        # g(s) = sum(c / (lam + s)) - d: decreasing and convex, g(1) > 0; Newton from the
+        # left converges from below
+        s_max = self.config.inconsistent_nis
+        s = 1.0
+        for _ in range(50):
+            q = c / (lam + s)
+            g = float(q.sum()) - d
+            if g <= 1e-9 * d:
+                break
+            s_new = s + g / float((q / (lam + s)).sum())
+            if s_new >= s_max:
+                return float(s_max)
+            if s_new - s <= 1e-9 * s:
+                s = s_new
+                break
+            s = s_new
+        return float(s)
+
+    def _weigh(self, t, nis, loglik, dof, nis_ref=None):
         """After an update: the hypotheses' weights, pruning, collapse; the NIS record."""
         if self.ekf.K > 1:
             lw = self._logw + loglik
@@ -791,25 +855,29 @@ class MotionAligner(EventSource, AttitudeReadout):
                 lw -= math.log(np.exp(lw).sum())
             self._logw = lw
             self._best = int(np.argmax(lw))
-        self._nis_add(t, float(nis[self._best]), dof)
+        nis = float(nis[self._best])
+        self._nis_add(t, nis, dof, nis if nis_ref is None else nis_ref)
 
-    def _nis_add(self, t, nis, dof):
-        nis = min(nis, 1e6)
-        self._nis.append((t, nis, dof))
+    def _nis_add(self, t, nis, dof, nis_ref):
+        nis, nis_ref = min(nis, 1e6), min(nis_ref, 1e6)
+        self._nis.append((t, nis, dof, nis_ref))
         s = self._nis_sum
         s[0] += nis * dof
         s[1] += dof
+        s[2] += nis_ref * dof
         w = self.config.aligned_nis_window
         while self._nis and self._nis[0][0] < t - w:
-            _, n, d = self._nis.popleft()
+            _, n, d, r = self._nis.popleft()
             s[0] -= n * d
             s[1] -= d
-        if len(self._nis) == 1 or s[0] < 0.0:      # no rounding left behind
+            s[2] -= r * d
+        if len(self._nis) == 1 or s[0] < 0.0 or s[2] < 0.0:      # no rounding left behind
             self._nis_resum()
 
     def _nis_resum(self):
-        """The window's sums (nis * dof, dof) computed anew from its entries."""
-        self._nis_sum = [sum(n * d for _, n, d in self._nis), sum(d for *_, d in self._nis)]
+        """The window's sums (nis * dof, dof, nis_ref * dof) computed anew from its entries."""
+        self._nis_sum = [sum(n * d for _, n, d, _ in self._nis), sum(x[2] for x in self._nis),
+                         sum(r * d for _, _, d, r in self._nis)]
 
     def _snapshot(self, t=None):
         if self.ekf is None:
@@ -839,12 +907,12 @@ class MotionAligner(EventSource, AttitudeReadout):
         if self.ekf is None:
             return
         nis = self.nis
-        if self._nis_sum[1] >= 30 and nis > c.inconsistent_nis:
+        if self._nis_sum[1] >= 30 and self.reference_nis > c.inconsistent_nis:
             # the reference contradicts the IMU (a wrong frame, lever arm, latency, noise):
             # nothing published from the filter can be trusted for a while
             if self.reference_consistent:
                 self.events["reference_inconsistent"] += 1
-                self._emit("inconsistent", stamp, float(nis))
+                self._emit("inconsistent", stamp, float(self.reference_nis))
             self._inconsistent_until = (stamp if stamp is not None else self.t_last) \
                 + c.inconsistent_memory
         t_now = stamp if stamp is not None else self.t_last
@@ -895,6 +963,8 @@ class MotionAligner(EventSource, AttitudeReadout):
             "gyro_scale_ppm": (self.ekf.sf[self._best] * 1e6).tolist() if ok else None,
             "accel_scale_ppm": (self.ekf.sa[self._best] * 1e6).tolist() if ok else None,
             "nis": self.nis,
+            "reference_nis": self.reference_nis,
+            "velocity_noise_scale": self.noise_scale,
         }
 
 
@@ -904,6 +974,17 @@ def _fl(x):
     except (TypeError, ValueError):
         return None
     return x if math.isfinite(x) else None
+
+
+def _whitened(y, S, R, s):
+    """An innovation y (d,) of covariance S = H P H^T + s R, against R as given: (c, lam)
+    (d,) with y^T (H P H^T + x R)^-1 y = sum(c / (lam + x)) for every x (R = L L^T,
+    L^-1 H P H^T L^-T = U diag(lam) U^T, c = (U^T L^-1 y)^2)."""
+    L = np.linalg.cholesky(R)
+    Li = np.linalg.inv(L)
+    M = Li @ (S - s * R) @ Li.T
+    lam, U = np.linalg.eigh(0.5 * (M + M.T))
+    return (U.T @ (Li @ y)) ** 2, np.maximum(lam, 0.0)
 
 
 def _valid_covariance(R: list, ok: list) -> bool:
