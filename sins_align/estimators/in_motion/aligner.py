@@ -140,7 +140,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._nis_sum = [0.0, 0, 0.0]            # their sums of nis * dof, dof, nis_ref * dof
         # the velocity updates' innovations against R as given, whitened: (t, c, lam), with
         # y^T (H P H^T + s R)^-1 y = sum(c / (lam + s)) (noise_scale)
-        self._vel_win: deque = deque()
+        self._vel_win = _InnovationWindow()
         #: the factor the velocity references' covariances are multiplied by (>= 1): what
         #: the recent innovations say their noise is (:meth:`_noise_scale`)
         self.noise_scale = 1.0
@@ -607,7 +607,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             bisect.insort(self._pending, a)
         self._nis = deque(x for x in self._nis if x[0] <= t_s)
         self._nis_resum()
-        self._vel_win = deque(x for x in self._vel_win if x[0] <= t_s)
+        self._vel_win.truncate(t_s)
         tt, ww, ff = self._history_after(t_s)
         self.events["rewinds"] += 1
         self._replaying = True
@@ -727,9 +727,14 @@ class MotionAligner(EventSource, AttitudeReadout):
             if nis[self._best] > self.config.nis_inflate:
                 self.events["velocity_inflated"] += 1
             ok = np.isfinite(payload[0])
-            c, lam = _whitened(*ekf.last_innovation(self._best), R[np.ix_(ok, ok)], s)
-            self._vel_win.append((t_now, c, lam))
-            self._weigh(t_now, nis, ll, int(ok.sum()), float(np.sum(c / (lam + 1.0))) / len(c))
+            d = int(ok.sum())
+            yw, M = _whitened(*ekf.last_innovation(self._best),
+                              R if d == 3 else R[np.ix_(ok, ok)], s)
+            # y^T (H P H^T + R)^-1 y: the NIS as computed when R was not scaled
+            r = (float(nis[self._best]) * d if s == 1.0
+                 else float(yw @ np.linalg.solve(M + np.eye(d), yw)))
+            self._vel_win.append(t_now, yw, M, d, r)
+            self._weigh(t_now, nis, ll, d, r / d)
         elif kind == "attitude":
             Cm, R = payload
             nis, ll = ekf.update_attitude(Cm, R, self.config.nis_inflate)
@@ -784,29 +789,22 @@ class MotionAligner(EventSource, AttitudeReadout):
         estimate does not feed on itself). 1 until they hold 30 degrees of freedom, at most
         ``inconsistent_nis`` (beyond, the reference contradicts the IMU). The same in a
         rewind: the innovations are those applied before t_now, within the window of t_now."""
-        w = self.config.aligned_nis_window
+        c = self.config
+        lo = t_now - c.aligned_nis_window
         win = self._vel_win
-        keep = t_now - w - self.config.max_measurement_lag - _HISTORY_MARGIN - 1.0
-        while win and win[0][0] < keep:
-            win.popleft()
-        cs, ls = [], []
-        for t, c, lam in reversed(win):
-            if t < t_now - w:
-                break
-            cs.append(c)
-            ls.append(lam)
-        if not cs:
+        if win.n - win.i0 > 256:
+            win.prune(lo - c.max_measurement_lag - _HISTORY_MARGIN - 1.0)
+        i = win.start(lo)
+        d, r = win.sums(i)
+        if d < 30 or r <= d:
             return 1.0
-        c, lam = np.concatenate(cs), np.concatenate(ls)
-        d = len(c)
-        if d < 30 or float(np.sum(c / (lam + 1.0))) <= d:
-            return 1.0
+        cs, lam = win.decomposed(i)
         # g(s) = sum(c / (lam + s)) - d: decreasing and convex, g(1) > 0; Newton from the
         # left converges from below
-        s_max = self.config.inconsistent_nis
+        s_max = c.inconsistent_nis
         s = 1.0
         for _ in range(50):
-            q = c / (lam + s)
+            q = cs / (lam + s)
             g = float(q.sum()) - d
             if g <= 1e-9 * d:
                 break
@@ -977,14 +975,87 @@ def _fl(x):
 
 
 def _whitened(y, S, R, s):
-    """An innovation y (d,) of covariance S = H P H^T + s R, against R as given: (c, lam)
-    (d,) with y^T (H P H^T + x R)^-1 y = sum(c / (lam + x)) for every x (R = L L^T,
-    L^-1 H P H^T L^-T = U diag(lam) U^T, c = (U^T L^-1 y)^2)."""
-    L = np.linalg.cholesky(R)
-    Li = np.linalg.inv(L)
-    M = Li @ (S - s * R) @ Li.T
-    lam, U = np.linalg.eigh(0.5 * (M + M.T))
-    return (U.T @ (Li @ y)) ** 2, np.maximum(lam, 0.0)
+    """An innovation y (d,) of covariance S = H P H^T + s R, whitened by R as given:
+    (L^-1 y, L^-1 H P H^T L^-T) with R = L L^T: y^T (H P H^T + x R)^-1 y is
+    yw^T (M + x I)^-1 yw for every x."""
+    r = R.diagonal()
+    if not np.any(R - np.diag(r)):              # (the usual diagonal R: L^-1 at once)
+        a = 1.0 / np.sqrt(r)
+        return a * y, (S - s * R) * np.outer(a, a)
+    Li = np.linalg.inv(np.linalg.cholesky(R))
+    return Li @ y, Li @ (S - s * R) @ Li.T
+
+
+class _InnovationWindow:
+    """The velocity updates' whitened innovations (:func:`_whitened`) in the order applied,
+    in arrays (fewer than 3 degrees of freedom: padded with a zero residual and a unit
+    diagonal), with y^T (H P H^T + R)^-1 y of each: those since a time are a slice (no
+    copying per update); a rewind cuts the ones after its state off. The decomposition
+    M = U diag(lam) U^T, c = (U^T yw)^2, so that y^T (H P H^T + x R)^-1 y = sum(c / (lam + x)),
+    is done only when asked for, for all the entries that lack it at once."""
+
+    _NAMES = ("t", "y", "M", "c", "lam", "d", "r")
+
+    def __init__(self, cap: int = 512):
+        self.t = np.empty(cap)
+        self.y = np.zeros((cap, 3))
+        self.M = np.zeros((cap, 3, 3))
+        self.c = np.zeros((cap, 3))
+        self.lam = np.zeros((cap, 3))
+        self.d = np.zeros(cap, dtype=int)
+        self.r = np.zeros(cap)
+        self.i0 = self.k = self.n = 0           # entries [i0, n), decomposed [i0, k)
+
+    def append(self, t, yw, M, d, r):
+        if self.n == len(self.t):
+            m = self.n - self.i0                # move the live ones to the front, or grow
+            cap = max(len(self.t), 2 * m + 16)
+            for name in self._NAMES:
+                a = getattr(self, name)
+                b = np.zeros((cap,) + a.shape[1:], dtype=a.dtype)
+                b[:m] = a[self.i0:self.n]
+                setattr(self, name, b)
+            self.k -= self.i0
+            self.i0, self.n = 0, m
+        i = self.n
+        self.t[i] = t
+        m = len(yw)
+        self.y[i] = 0.0
+        self.y[i, :m] = yw
+        self.M[i] = np.eye(3)
+        self.M[i, :m, :m] = M
+        self.d[i] = d
+        self.r[i] = r
+        self.n += 1
+
+    def prune(self, t):
+        """Forget the entries before t (none a rewind can reach)."""
+        self.i0 += int(np.searchsorted(self.t[self.i0:self.n], t, "left"))
+        self.k = max(self.k, self.i0)
+
+    def truncate(self, t):
+        """Forget the entries after t (a rewind to t)."""
+        self.n = self.i0 + int(np.searchsorted(self.t[self.i0:self.n], t, "right"))
+        self.k = min(self.k, self.n)
+
+    def start(self, t) -> int:
+        """The index of the first entry at or after t."""
+        return self.i0 + int(np.searchsorted(self.t[self.i0:self.n], t, "left"))
+
+    def sums(self, i):
+        """From entry i on: their degrees of freedom and sum of y^T (H P H^T + R)^-1 y."""
+        return int(self.d[i:self.n].sum()), float(self.r[i:self.n].sum())
+
+    def decomposed(self, i):
+        """(c, lam) (m, 3) of the entries from i on."""
+        k, n = max(self.k, i), self.n
+        if k < n:
+            M = self.M[k:n]
+            lam, U = np.linalg.eigh(0.5 * (M + np.swapaxes(M, -1, -2)))
+            self.c[k:n] = np.einsum("kij,ki->kj", U, self.y[k:n]) ** 2
+            self.lam[k:n] = np.maximum(lam, 0.0)
+            self.k = n
+        return self.c[i:n], self.lam[i:n]
 
 
 def _valid_covariance(R: list, ok: list) -> bool:
