@@ -806,12 +806,12 @@ class MotionAligner(EventSource, AttitudeReadout):
         for _ in range(50):
             q = cs / (lam + s)
             g = float(q.sum()) - d
-            if g <= 1e-9 * d:
+            if g <= 1e-7 * d:
                 break
             s_new = s + g / float((q / (lam + s)).sum())
             if s_new >= s_max:
                 return float(s_max)
-            if s_new - s <= 1e-9 * s:
+            if s_new - s <= 1e-7 * s:
                 s = s_new
                 break
             s = s_new
@@ -1020,10 +1020,14 @@ class _InnovationWindow:
         i = self.n
         self.t[i] = t
         m = len(yw)
-        self.y[i] = 0.0
-        self.y[i, :m] = yw
-        self.M[i] = np.eye(3)
-        self.M[i, :m, :m] = M
+        if m == 3:
+            self.y[i] = yw
+            self.M[i] = M
+        else:
+            self.y[i] = 0.0
+            self.y[i, :m] = yw
+            self.M[i] = np.eye(3)
+            self.M[i, :m, :m] = M
         self.d[i] = d
         self.r[i] = r
         self.n += 1
