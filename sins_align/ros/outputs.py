@@ -173,7 +173,8 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
         msg += " (heading not observable yet: it needs horizontal acceleration or turns)"
     if not getattr(est, "reference_consistent", True):
         level = ERROR
-        msg = (f"velocity reference contradicts the IMU (mean NIS {est.nis:.0f}): check "
+        nis = getattr(est, "reference_nis", est.nis)
+        msg = (f"velocity reference contradicts the IMU (mean NIS {nis:.0f}): check "
                f"velocity_frame (enu/ned), lever_arm, velocity_latency, velocity_noise; "
                f"attitude published as unknown")
     std = est.std_enu_deg
@@ -187,6 +188,7 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
         ("aligned", str(bool(est.aligned)).lower()),
         ("heading_observable", str(bool(est.heading_observable)).lower()),
         ("reference_consistent", str(bool(getattr(est, "reference_consistent", True))).lower()),
+        ("velocity_noise_scale", f"{float(getattr(est, 'noise_scale', 1.0)):.3f}"),
         ("std_east_deg", f"{std[0]:.6f}"),
         ("std_north_deg", f"{std[1]:.6f}"),
         ("std_up_deg", f"{std[2]:.6f}"),

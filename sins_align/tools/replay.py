@@ -925,6 +925,7 @@ class ReplaySession:
             out["final"]["velocity_enu_mps"] = np.asarray(al.velocity, dtype=float).tolist()
             out["final"]["velocity_latency_s"] = al.velocity_latency
             out["final"]["reference_consistent"] = bool(al.reference_consistent)
+            out["final"]["velocity_noise_scale"] = float(al.noise_scale)
             if al.config.vehicle == "ground":
                 out["final"]["nhc_lever_arm_m"] = np.asarray(al.nhc_lever_arm,
                                                              dtype=float).tolist()

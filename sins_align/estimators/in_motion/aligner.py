@@ -141,8 +141,14 @@ class MotionAligner(EventSource, AttitudeReadout):
                                        + c.velocity_averaging + 1.0)
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
         self._next_nhc: float | None = None
-        self._nis: deque = deque()               # (t, nis per dof, dof)
-        self._nis_sum = [0.0, 0]                 # their sums of nis * dof and of dof
+        self._nis: deque = deque()               # (t, nis per dof, dof, that with R as given)
+        self._nis_sum = [0.0, 0, 0.0]            # their sums of nis * dof, dof, nis_ref * dof
+        # the velocity updates' innovations against R as given, whitened: (t, c, lam), with
+        # y^T (H P H^T + s R)^-1 y = sum(c / (lam + s)) (noise_scale)
+        self._vel_win = _InnovationWindow()
+        #: the factor the velocity references' covariances are multiplied by (>= 1): what
+        #: the recent innovations say their noise is (:meth:`_noise_scale`)
+        self.noise_scale = 1.0
         self._replaying = False
         self.time_to_aligned: float | None = None
         self.heading_observable = False
@@ -250,10 +256,19 @@ class MotionAligner(EventSource, AttitudeReadout):
 
     @property
     def nis(self) -> float:
-        """Mean NIS per degree of freedom over the last ``aligned_nis_window`` s (nan: none)."""
+        """Mean NIS per degree of freedom over the last ``aligned_nis_window`` s (nan: none),
+        the velocity references' covariances scaled by ``noise_scale`` as applied."""
         if not self._nis:
             return math.nan
         return self._nis_sum[0] / self._nis_sum[1]
+
+    @property
+    def reference_nis(self) -> float:
+        """:attr:`nis` with the velocity references' covariances as given (not scaled): what
+        ``inconsistent_nis`` is compared with."""
+        if not self._nis:
+            return math.nan
+        return self._nis_sum[2] / self._nis_sum[1]
 
     @property
     def aligned(self) -> bool:
@@ -600,6 +615,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             bisect.insort(self._pending, a)
         self._nis = deque(x for x in self._nis if x[0] <= t_s)
         self._nis_resum()
+        self._vel_win.truncate(t_s)
         tt, ww, ff = self._history_after(t_s)
         self.events["rewinds"] += 1
         self._replaying = True
@@ -710,13 +726,23 @@ class MotionAligner(EventSource, AttitudeReadout):
                 acc[2] -= float(normal_gravity(ekf.lat[b], ekf.h[b]))
                 z = z + (t_now - ts) * acc
             parked = self._parked(t_now, payload)
-            nis, ll = ekf.update_velocity(z, R, self.config.nis_inflate, consider_heading=parked)
+            s = self.noise_scale = self._noise_scale(t_now)
+            nis, ll = ekf.update_velocity(z, R if s == 1.0 else s * R, self.config.nis_inflate,
+                                          consider_heading=parked)
             self.events["velocity"] += 1
             if parked:
                 self.events["velocity_parked"] += 1
             if nis[self._best] > self.config.nis_inflate:
                 self.events["velocity_inflated"] += 1
-            self._weigh(t_now, nis, ll, int(np.isfinite(payload[0]).sum()))
+            ok = np.isfinite(payload[0])
+            d = int(ok.sum())
+            yw, M = _whitened(*ekf.last_innovation(self._best),
+                              R if d == 3 else R[np.ix_(ok, ok)], s)
+            # y^T (H P H^T + R)^-1 y: the NIS as computed when R was not scaled
+            r = (float(nis[self._best]) * d if s == 1.0
+                 else float(yw @ np.linalg.solve(M + np.eye(d), yw)))
+            self._vel_win.append(t_now, yw, M, d, r)
+            self._weigh(t_now, nis, ll, d, r / d)
         elif kind == "attitude":
             Cm, R = payload
             nis, ll = ekf.update_attitude(Cm, R, self.config.nis_inflate)
@@ -763,7 +789,43 @@ class MotionAligner(EventSource, AttitudeReadout):
         C = ekf.C[b]
         return self._parked(t_now, (ekf.v[b], C @ ekf.P[b, INU, INU] @ C.T))
 
-    def _weigh(self, t, nis, loglik, dof):
+    def _noise_scale(self, t_now) -> float:
+        """Covariance matching (Mehra): the factor s >= 1 on the velocity references' R for
+        which the velocity innovations of the last ``aligned_nis_window`` s would have had a
+        mean NIS per degree of freedom of 1: sum(y^T (H P H^T + s R)^-1 y) = sum(d), with each
+        innovation's H P H^T as it was and R as given (the scale in use does not enter: the
+        estimate does not feed on itself). 1 until they hold 30 degrees of freedom, at most
+        ``inconsistent_nis`` (beyond, the reference contradicts the IMU). The same in a
+        rewind: the innovations are those applied before t_now, within the window of t_now."""
+        c = self.config
+        lo = t_now - c.aligned_nis_window
+        win = self._vel_win
+        if win.n - win.i0 > 256:
+            win.prune(lo - c.max_measurement_lag - _HISTORY_MARGIN - 1.0)
+        i = win.start(lo)
+        d, r = win.sums(i)
+        if d < 30 or r <= d:
+            return 1.0
+        cs, lam = win.decomposed(i)
+        # g(s) = sum(c / (lam + s)) - d: decreasing and convex, g(1) > 0; Newton from the
+        # left converges from below
+        s_max = c.inconsistent_nis
+        s = 1.0
+        for _ in range(50):
+            q = cs / (lam + s)
+            g = float(q.sum()) - d
+            if g <= 1e-7 * d:
+                break
+            s_new = s + g / float((q / (lam + s)).sum())
+            if s_new >= s_max:
+                return float(s_max)
+            if s_new - s <= 1e-7 * s:
+                s = s_new
+                break
+            s = s_new
+        return float(s)
+
+    def _weigh(self, t, nis, loglik, dof, nis_ref=None):
         """After an update: the hypotheses' weights, pruning, collapse; the NIS record."""
         if self.ekf.K > 1:
             lw = self._logw + loglik
@@ -799,25 +861,29 @@ class MotionAligner(EventSource, AttitudeReadout):
                 lw -= math.log(np.exp(lw).sum())
             self._logw = lw
             self._best = int(np.argmax(lw))
-        self._nis_add(t, float(nis[self._best]), dof)
+        nis = float(nis[self._best])
+        self._nis_add(t, nis, dof, nis if nis_ref is None else nis_ref)
 
-    def _nis_add(self, t, nis, dof):
-        nis = min(nis, 1e6)
-        self._nis.append((t, nis, dof))
+    def _nis_add(self, t, nis, dof, nis_ref):
+        nis, nis_ref = min(nis, 1e6), min(nis_ref, 1e6)
+        self._nis.append((t, nis, dof, nis_ref))
         s = self._nis_sum
         s[0] += nis * dof
         s[1] += dof
+        s[2] += nis_ref * dof
         w = self.config.aligned_nis_window
         while self._nis and self._nis[0][0] < t - w:
-            _, n, d = self._nis.popleft()
+            _, n, d, r = self._nis.popleft()
             s[0] -= n * d
             s[1] -= d
-        if len(self._nis) == 1 or s[0] < 0.0:      # no rounding left behind
+            s[2] -= r * d
+        if len(self._nis) == 1 or s[0] < 0.0 or s[2] < 0.0:      # no rounding left behind
             self._nis_resum()
 
     def _nis_resum(self):
-        """The window's sums (nis * dof, dof) computed anew from its entries."""
-        self._nis_sum = [sum(n * d for _, n, d in self._nis), sum(d for *_, d in self._nis)]
+        """The window's sums (nis * dof, dof, nis_ref * dof) computed anew from its entries."""
+        self._nis_sum = [sum(n * d for _, n, d, _ in self._nis), sum(x[2] for x in self._nis),
+                         sum(r * d for _, _, d, r in self._nis)]
 
     def _snapshot(self, t=None):
         if self.ekf is None:
@@ -847,12 +913,12 @@ class MotionAligner(EventSource, AttitudeReadout):
         if self.ekf is None:
             return
         nis = self.nis
-        if self._nis_sum[1] >= 30 and nis > c.inconsistent_nis:
+        if self._nis_sum[1] >= 30 and self.reference_nis > c.inconsistent_nis:
             # the reference contradicts the IMU (a wrong frame, lever arm, latency, noise):
             # nothing published from the filter can be trusted for a while
             if self.reference_consistent:
                 self.events["reference_inconsistent"] += 1
-                self._emit("inconsistent", stamp, float(nis))
+                self._emit("inconsistent", stamp, float(self.reference_nis))
             self._inconsistent_until = (stamp if stamp is not None else self.t_last) \
                 + c.inconsistent_memory
         t_now = stamp if stamp is not None else self.t_last
@@ -903,6 +969,8 @@ class MotionAligner(EventSource, AttitudeReadout):
             "gyro_scale_ppm": (self.ekf.sf[self._best] * 1e6).tolist() if ok else None,
             "accel_scale_ppm": (self.ekf.sa[self._best] * 1e6).tolist() if ok else None,
             "nis": self.nis,
+            "reference_nis": self.reference_nis,
+            "velocity_noise_scale": self.noise_scale,
         }
 
 
@@ -912,6 +980,94 @@ def _fl(x):
     except (TypeError, ValueError):
         return None
     return x if math.isfinite(x) else None
+
+
+def _whitened(y, S, R, s):
+    """An innovation y (d,) of covariance S = H P H^T + s R, whitened by R as given:
+    (L^-1 y, L^-1 H P H^T L^-T) with R = L L^T: y^T (H P H^T + x R)^-1 y is
+    yw^T (M + x I)^-1 yw for every x."""
+    r = R.diagonal()
+    if not np.any(R - np.diag(r)):              # (the usual diagonal R: L^-1 at once)
+        a = 1.0 / np.sqrt(r)
+        return a * y, (S - s * R) * np.outer(a, a)
+    Li = np.linalg.inv(np.linalg.cholesky(R))
+    return Li @ y, Li @ (S - s * R) @ Li.T
+
+
+class _InnovationWindow:
+    """The velocity updates' whitened innovations (:func:`_whitened`) in the order applied,
+    in arrays (fewer than 3 degrees of freedom: padded with a zero residual and a unit
+    diagonal), with y^T (H P H^T + R)^-1 y of each: those since a time are a slice (no
+    copying per update); a rewind cuts the ones after its state off. The decomposition
+    M = U diag(lam) U^T, c = (U^T yw)^2, so that y^T (H P H^T + x R)^-1 y = sum(c / (lam + x)),
+    is done only when asked for, for all the entries that lack it at once."""
+
+    _NAMES = ("t", "y", "M", "c", "lam", "d", "r")
+
+    def __init__(self, cap: int = 512):
+        self.t = np.empty(cap)
+        self.y = np.zeros((cap, 3))
+        self.M = np.zeros((cap, 3, 3))
+        self.c = np.zeros((cap, 3))
+        self.lam = np.zeros((cap, 3))
+        self.d = np.zeros(cap, dtype=int)
+        self.r = np.zeros(cap)
+        self.i0 = self.k = self.n = 0           # entries [i0, n), decomposed [i0, k)
+
+    def append(self, t, yw, M, d, r):
+        if self.n == len(self.t):
+            m = self.n - self.i0                # move the live ones to the front, or grow
+            cap = max(len(self.t), 2 * m + 16)
+            for name in self._NAMES:
+                a = getattr(self, name)
+                b = np.zeros((cap,) + a.shape[1:], dtype=a.dtype)
+                b[:m] = a[self.i0:self.n]
+                setattr(self, name, b)
+            self.k -= self.i0
+            self.i0, self.n = 0, m
+        i = self.n
+        self.t[i] = t
+        m = len(yw)
+        if m == 3:
+            self.y[i] = yw
+            self.M[i] = M
+        else:
+            self.y[i] = 0.0
+            self.y[i, :m] = yw
+            self.M[i] = np.eye(3)
+            self.M[i, :m, :m] = M
+        self.d[i] = d
+        self.r[i] = r
+        self.n += 1
+
+    def prune(self, t):
+        """Forget the entries before t (none a rewind can reach)."""
+        self.i0 += int(np.searchsorted(self.t[self.i0:self.n], t, "left"))
+        self.k = max(self.k, self.i0)
+
+    def truncate(self, t):
+        """Forget the entries after t (a rewind to t)."""
+        self.n = self.i0 + int(np.searchsorted(self.t[self.i0:self.n], t, "right"))
+        self.k = min(self.k, self.n)
+
+    def start(self, t) -> int:
+        """The index of the first entry at or after t."""
+        return self.i0 + int(np.searchsorted(self.t[self.i0:self.n], t, "left"))
+
+    def sums(self, i):
+        """From entry i on: their degrees of freedom and sum of y^T (H P H^T + R)^-1 y."""
+        return int(self.d[i:self.n].sum()), float(self.r[i:self.n].sum())
+
+    def decomposed(self, i):
+        """(c, lam) (m, 3) of the entries from i on."""
+        k, n = max(self.k, i), self.n
+        if k < n:
+            M = self.M[k:n]
+            lam, U = np.linalg.eigh(0.5 * (M + np.swapaxes(M, -1, -2)))
+            self.c[k:n] = np.einsum("kij,ki->kj", U, self.y[k:n]) ** 2
+            self.lam[k:n] = np.maximum(lam, 0.0)
+            self.k = n
+        return self.c[i:n], self.lam[i:n]
 
 
 def _valid_covariance(R: list, ok: list) -> bool:

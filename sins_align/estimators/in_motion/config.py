@@ -105,14 +105,17 @@ class MotionConfig:
     aligned_level_std_deg, aligned_heading_std_deg : the aligned criterion (with the heading
         observable and the recent innovations consistent).
     aligned_nis : mean NIS per degree of freedom over the last ``aligned_nis_window`` s above
-        which the flag is held down.
-    inconsistent_nis : that mean above which the velocity reference contradicts the IMU (a
+        which the flag is held down (the velocity references' covariances scaled by the
+        aligner's ``noise_scale``, as applied).
+    inconsistent_nis : that mean, with the velocity references' covariances as given, above
+        which the velocity reference contradicts the IMU (a
         wrong ``velocity_frame``, lever arm or latency, a reference far noisier than said;
         an honest filter's stays near 1: at most 1.33 over the benchmark's scenarios): the
         attitude is then published as unknown (pi^2 rad^2 on each axis, as before the start)
         and ``reference_consistent`` is False, until ``inconsistent_memory`` s after the last
         window above it (velocities given in NED to a filter told ENU agree with a heading
-        60 deg off while the car drives straight, and contradict it in every turn).
+        60 deg off while the car drives straight, and contradict it in every turn). Also the
+        largest ``noise_scale``.
     """
 
     latitude_deg: float

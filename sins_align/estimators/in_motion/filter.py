@@ -286,6 +286,7 @@ class InvariantEKF:
         self.lat = np.full(K, state.lat)
         self.lon = np.full(K, state.lon)
         self.h = np.full(K, state.h)
+        self._innovation = None                 # (y, H P H^T + R) of the last update
         P0 = np.asarray(P0, dtype=float)
         self.P = np.broadcast_to(P0, (K,) + P0.shape[-2:]).copy()
         self.n = self.P.shape[-1]
@@ -634,6 +635,7 @@ class InvariantEKF:
         P = self.P
         PHT = P @ _mT(H)
         S = H @ PHT + R
+        self._innovation = (y, S)
         Sinv = np.linalg.inv(S)
         d = y.shape[-1]
         Sy = (Sinv @ y[..., None])[..., 0]
@@ -677,6 +679,7 @@ class InvariantEKF:
         P = self.P[0]
         PHT = P @ H.T
         S = H @ PHT + R
+        self._innovation = (y[None], S[None])
         Sinv = 1.0 / S if len(y) == 1 else np.linalg.inv(S)     # (1 x 1: the same division)
         Sy = Sinv @ y
         nis = float(y @ Sy) / len(y)
@@ -702,6 +705,12 @@ class InvariantEKF:
             self.dx = (dx - u)[None]
         self.t_since_feedback = 0.0
         return np.array([nis]), np.zeros(1)
+
+    def last_innovation(self, i: int):
+        """Filter i's residual (d,) and its covariance H P H^T + R (d, d) in the last update,
+        before any inflation by ``nis_limit``."""
+        y, S = self._innovation
+        return y[i], S[i]
 
     def corrected(self, i: int):
         """Filter i's state with the error estimate not yet fed back removed: (C, v, bg, ba,
