@@ -907,11 +907,17 @@ class Aligner(EventSource, AttitudeReadout):
                 # one noisy sample multiplies its noise by the hole's length). The step then
                 # integrates the interval's mean of the two.
                 means, held, (wm, fm) = rec.bridge_errors(missing, nom, w, f)
-                hole = list(held)
+                err_m, err_h = means, held
+                if x != t:
+                    # (a jittering stamp: the clock bridges a lost sample at the stamp after
+                    # the one that counted it, which took the lost one's place, one interval
+                    # early: the bridge's error over one interval more)
+                    err_m, err_h, _ = rec.bridge_errors(missing + nom, nom, w, f)
+                hole = list(err_h)
                 if means[0] < held[0]:
-                    w, hole[0], dR = (wm * missing + w * nom) / dt, means[0], None
+                    w, hole[0], dR = (wm * missing + w * nom) / dt, err_m[0], None
                 if means[1] < held[1]:
-                    f, hole[1] = (fm * missing + f * nom) / dt, means[1]
+                    f, hole[1] = (fm * missing + f * nom) / dt, err_m[1]
                 hole = tuple(hole)
             self.events["missing_samples"] += max(1, int(round(missing / nom)))
         if force_var > 0.0:
