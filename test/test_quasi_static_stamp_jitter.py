@@ -1,10 +1,12 @@
 """IMU stamps that jitter (receipt-time stamps) in the quasi-static Aligner: each sample is
 integrated over the interval of a steady clock fitted to the stamps (core/clock.py), on the
-per-sample path and the block path alike, not over its stamps' difference. Before, the
-honesty matrix's ``car_vib_hi`` (navigation grade, 300 s) with stamps +-10 % of the
-interval was beyond 3 sigma at 40-70 % of its published states (seeds 0, 1; clean 0 %),
-aligned while beyond at 60-210, and a stream received 1 ms late on average (in order) made
-the block path raise (intervals beyond the fast path's 40 %)."""
+per-sample path and the block path alike, not over its stamps' difference. On main (these
+tests' draws), the honesty matrix's ``car_vib_hi`` (navigation grade, 300 s) with stamps
++-10 % of the interval was beyond 3 sigma at 15 / 22 % of its published states (seeds 0,
+1; clean 0 %), at +-40 % its heading std 11 x the clean one, ``ang_x_1Hz_1deg`` +-40 % 2 %
+beyond, and a stream received 1 ms late on average (in order) made the block path raise
+(intervals beyond the fast path's 40 %): 7 of these 10 tests fail there (the block path's
+equality held where it did not raise, and ``car_loss_1pct`` +-20 % passed)."""
 import numpy as np
 import pytest
 
@@ -61,7 +63,7 @@ def test_jittering_stamps_stay_honest(case, model, seed, std_ratio):
     assert r["frac_over_3sigma"] == 0.0, r["frac_over_3sigma"]
     assert r["aligned_wrong"] == 0
     assert r["final_std_deg"][2] <= std_ratio * clean["final_std_deg"][2]
-    assert r["final_aligned"]
+    assert r["final_aligned"] == clean["final_aligned"]
 
 
 def _stream(model, seed=4, lost=0.01, duration=120.0):
