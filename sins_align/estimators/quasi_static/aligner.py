@@ -532,7 +532,7 @@ class Aligner(EventSource, AttitudeReadout):
             cut = b if ok.all() else a + int(np.argmin(ok))
             # every sample up to ``cut`` will be accepted, here or one by one: their instants
             # (kept for the samples that take the per-sample path), then no hole among them
-            x = self._instants_ahead(t, a, cut)
+            x = self._instants_ahead(t, k, cut)[a - k:]
             dx = np.diff(x, prepend=last)
             ok = (dx <= c.gap_ratio * nom) & (np.abs(dx - nom) <= 0.4 * nom)
             if not ok.all():
@@ -557,7 +557,8 @@ class Aligner(EventSource, AttitudeReadout):
         self._ahead_i = 0
 
     def _instants_ahead(self, t, a: int, b: int) -> np.ndarray:
-        """The instants of the stamps ``t[a:b]``, samples that will all be accepted in order
+        """The instants of the stamps ``t[a:b]`` (``a``: the next sample to be fed, whose
+        instant is the first computed ahead, if any), samples that will all be accepted in order
         (by a block or one by one: :meth:`_instant` takes them from here), those not
         computed yet from the clock."""
         i = self._ahead_i
