@@ -62,6 +62,7 @@ beyond 3 sigma at 1-4 % (main: 0-2 %).
 from __future__ import annotations
 
 import math
+import statistics
 
 import numpy as np
 
@@ -118,7 +119,8 @@ class SampleClock:
                 return t
             e = np.array(self._early)
             d = np.diff(e)
-            T = float(np.median(d))
+            # (statistics.median: the same value, without importing numpy.ma, 12 ms)
+            T = float(statistics.median(d.tolist()))
             if np.all(np.abs(d - np.maximum(np.rint(d / T), 1.0) * T) <= TOLERANCE * T):
                 self.period, self._seen = T, len(e)
             else:
