@@ -9,7 +9,7 @@ import pytest
 
 from sins_align.core.rotation import attitude_error
 from sins_align.estimators.in_motion import MotionAligner, MotionConfig
-from sins_align.estimators.in_motion.clock import START, SampleClock
+from sins_align.core.clock import START, SampleClock
 from sins_align.sim.trajectory import SEED003_SPECS, Vibration, simulate_trajectory, uav_seed003
 
 #: the accelerometer's vibration of a rotor UAV (as in test_in_motion_gaps.py)

@@ -5,7 +5,7 @@ interface every estimator has (:mod:`sins_align.estimators`):
 
 - IMU samples (:meth:`MotionAligner.update`, one or a block) are checked and propagated,
   each at its instant on the IMU's steady clock (the stamp itself, unless the stamps
-  jitter: :mod:`~sins_align.estimators.in_motion.clock`; ``t_last`` is the last instant);
+  jitter: :mod:`~sins_align.core.clock`; ``t_last`` is the last instant);
 - measurements (:meth:`~MotionAligner.add_velocity`, :meth:`~MotionAligner.add_attitude`) are
   applied at their own stamps: one stamped ahead of the IMU waits until the IMU reaches it;
   one stamped behind (GNSS velocity arrives ~0.1 s after its stamp) makes the filter go back
@@ -40,7 +40,7 @@ from sins_align.core.rotation import (attitude_error, dcm_from_quat, dcm_from_rp
                                       so3_left_jacobian_inv, so3_log)
 from sins_align.core.specs import DEG, DPH
 from sins_align.core.strapdown import NavState
-from sins_align.estimators.in_motion.clock import SampleClock
+from sins_align.core.clock import SampleClock
 from sins_align.estimators.in_motion.config import MotionConfig
 from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFeedback,
                                                       lqr_gain)
@@ -374,7 +374,7 @@ class MotionAligner(EventSource, AttitudeReadout):
 
     def _feed(self, t, w, f):
         """Accepted samples, in order: from here on, each at its instant on the IMU's clock
-        (clock.py: the stamp itself unless the stamps jitter)."""
+        (core/clock.py: the stamp itself unless the stamps jitter)."""
         self._stamp_last = float(t[-1])
         t = self._clock.times(t)
         if self.t_first is None:

@@ -99,7 +99,7 @@ class MotionConfig:
         has its noise inflated until it equals it (large early transients, skids, outliers).
     max_gap : s — IMU stamp gaps above this restart the alignment; shorter holes (above 1.5
         nominal intervals) are bridged and grow the covariance (``gaps.py``). Stamps that
-        jitter are replaced by the instants of a steady clock fitted to them (``clock.py``).
+        jitter are replaced by the instants of a steady clock fitted to them (``core/clock.py``).
     max_angular_rate : rad/s; specific_force_max : m/s^2 — samples above are rejected.
     observable_heading_std_deg : heading counts as observable once its std is below this.
     aligned_level_std_deg, aligned_heading_std_deg : the aligned criterion (with the heading

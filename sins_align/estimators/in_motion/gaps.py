@@ -51,7 +51,7 @@ they cannot say (:func:`bridge_gaps`):
 A hole is an interval above :data:`GAP_RATIO` times the nominal interval (the median of the
 intervals the filter started with), between the samples' instants (the stamps' own unless
 they jitter: then those of a steady clock fitted to them, whose intervals across a hole are
-a whole number of nominal ones; :mod:`~sins_align.estimators.in_motion.clock`).
+a whole number of nominal ones; :mod:`~sins_align.core.clock`).
 Everything depends on the stamps and the samples only, so a stream fed sample by sample, in
 blocks, or run again after a late measurement gives the same bridges.
 """

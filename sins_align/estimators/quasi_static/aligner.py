@@ -1,8 +1,11 @@
 """Streaming self-alignment estimator: damped mechanization + error-state Kalman filter.
 
 This is the numpy core shared by the ROS node, the bag replay and the benchmarks. It knows
-nothing about ROS. Time comes only from the sample stamps. This module holds the
-:class:`Aligner` (input checks, holes and shocks, the time line, the aligned flag, events);
+nothing about ROS. Time comes only from the sample stamps: each accepted sample is
+integrated up to its instant on the IMU's steady clock (the stamp itself unless the stamps
+jitter: :mod:`sins_align.core.clock`, on the per-sample and the block path alike).
+This module holds the :class:`Aligner` (input checks, holes and shocks, the time line, the
+aligned flag, events);
 the filter it drives is :class:`~sins_align.estimators.quasi_static.filter.AlignmentFilter`.
 
 Method (see README "How it aligns" and ALGORITHM.md)
@@ -35,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sins_align.core.clock import SampleClock
 from sins_align.core.earth import gravity_enu
 from sins_align.estimators.quasi_static.config import AlignConfig
 from sins_align.estimators.base import AlignmentEvent, AttitudeReadout, EventSource
@@ -191,6 +195,11 @@ class Aligner(EventSource, AttitudeReadout):
         self.t_first: float | None = None
         self.t_last = None
         self._t_prev_raw: float | None = None
+        # the time line: each accepted sample's instant on the IMU's steady clock (the stamp
+        # itself unless the stamps jitter: core/clock.py); t_last is the last instant,
+        # _stamp_last the last accepted stamp (the stamp checks' reference)
+        self._stamp_last: float | None = None
+        self._new_clock()
         self._jump: tuple[float, int] | None = None    # pending time jump: (stamp, samples)
         self._force_ok: float | None = None    # stamp of the last force within range
         self._dt_seen: list[float] = []
@@ -355,6 +364,12 @@ class Aligner(EventSource, AttitudeReadout):
         return 0.5 * (P + P.T)
 
     @property
+    def stamp_clock(self) -> SampleClock:
+        """The steady clock the accepted samples' instants are taken from (read only:
+        ``jittering`` while it replaces the stamps, ``rms`` their scatter about it, s)."""
+        return self._clock
+
+    @property
     def limit_std_deg(self) -> np.ndarray:
         """Limit accuracy (E, N, U) for the configured bias specs, deg (U may be inf)."""
         return self.limit_std / DEG
@@ -466,8 +481,8 @@ class Aligner(EventSource, AttitudeReadout):
         k = 0
         while k < len(t):
             j = self._clean_run(t, w, f, k)
-            if j - k >= FAST_MIN_BLOCK and uniform_interval(
-                    np.diff(t[k:j], prepend=self.t_last)) is not None:
+            if j - k >= FAST_MIN_BLOCK and uniform_interval(np.diff(
+                    self._instants_ahead(t, k, j), prepend=self.t_last)) is not None:
                 used = self._accept_block(t[k:j], w[k:j], f[k:j], states=out, at=k,
                                           want=want, views=views)
                 out.used += used
@@ -491,11 +506,12 @@ class Aligner(EventSource, AttitudeReadout):
         would flag the rates is cut off later, in _accept_block)."""
         c = self.config
         if (c.model != "constant" or self.t_last is None or self.nominal_dt is None
-                or self.units_suspect or self._t_prev_raw != self.t_last
+                or self.units_suspect or self._t_prev_raw != self._stamp_last
                 or len(t) - k < FAST_MIN_BLOCK):
             return k
         nom, g = self.nominal_dt, self.g
-        end, prev = min(len(t), k + FAST_MAX_BLOCK), self.t_last
+        end, prev = min(len(t), k + FAST_MAX_BLOCK), self._stamp_last
+        last = self.t_last
         # piece by piece (small temporaries: no fresh memory to fault in), up to the first
         # sample a check would take out
         for a in range(k, end, CLEAN_PIECE):
@@ -507,14 +523,70 @@ class Aligner(EventSource, AttitudeReadout):
             fn, wn = (np.sqrt(x[:, 0] * x[:, 0] + x[:, 1] * x[:, 1] + x[:, 2] * x[:, 2])
                       for x in (f[a:b], w[a:b]))
             ok = (np.isfinite(tt)
-                  & (dts >= c.min_dt_ratio * nom) & (dts <= c.gap_ratio * nom)
-                  & (dts <= c.max_gap) & (np.abs(dts - nom) <= 0.4 * nom)
+                  & (dts >= c.min_dt_ratio * nom) & (dts <= c.max_gap)
                   & (fn >= 0.25 * g) & (np.abs(fn - g) <= c.specific_force_tolerance * g)
                   & (wn <= c.max_angular_rate))
+            if not self._clock.jittering:
+                # (stamps on the IMU's clock are their instants: no hole, as below)
+                ok &= (dts <= c.gap_ratio * nom) & (np.abs(dts - nom) <= 0.4 * nom)
+            cut = b if ok.all() else a + int(np.argmin(ok))
+            # every sample up to ``cut`` will be accepted, here or one by one: their instants
+            # (kept for the samples that take the per-sample path), then no hole among them
+            x = self._instants_ahead(t, k, cut)[a - k:]
+            dx = np.diff(x, prepend=last)
+            ok = (dx <= c.gap_ratio * nom) & (np.abs(dx - nom) <= 0.4 * nom)
             if not ok.all():
-                return a + int(np.argmin(ok))
-            prev = tt[-1]
+                end = a + int(np.argmin(ok))
+                break
+            if cut < b:
+                end = cut
+                break
+            prev, last = tt[-1], x[-1]
+        if end - k >= FAST_MIN_BLOCK and self._clock.jittering:
+            # the fast path takes intervals within 40 % of their mean
+            dx = np.diff(self._ahead_x[self._ahead_i:self._ahead_i + end - k],
+                         prepend=self.t_last)
+            if not np.all(np.abs(dx - dx.mean()) <= 0.4 * dx.mean()):
+                return k
         return end
+
+    def _new_clock(self) -> None:
+        """A new steady clock (a new time line), and no instants computed ahead."""
+        self._clock = SampleClock()
+        self._ahead_t = self._ahead_x = np.empty(0)
+        self._ahead_i = 0
+
+    def _instants_ahead(self, t, a: int, b: int) -> np.ndarray:
+        """The instants of the stamps ``t[a:b]`` (``a``: the next sample to be fed, whose
+        instant is the first computed ahead, if any), samples that will all be accepted in order
+        (by a block or one by one: :meth:`_instant` takes them from here), those not
+        computed yet from the clock."""
+        i = self._ahead_i
+        p = len(self._ahead_x) - i
+        if b - a > p:
+            new = self._clock.times(t[a + p:b])
+            if p:
+                self._ahead_t = np.concatenate((self._ahead_t[i:], t[a + p:b]))
+                self._ahead_x = np.concatenate((self._ahead_x[i:], new))
+            else:
+                self._ahead_t, self._ahead_x = t[a:b], new
+            self._ahead_i = i = 0
+        return self._ahead_x[i:i + b - a]
+
+    def _instant(self, t: float) -> float:
+        """The instant of the accepted stamp ``t`` (the next one computed ahead, or the
+        clock's)."""
+        i = self._ahead_i
+        if i < len(self._ahead_x):
+            self._ahead_i = i + 1
+            return float(self._ahead_x[i])
+        return self._clock.time(t)
+
+    def _take_instants(self, t) -> np.ndarray:
+        """The instants computed ahead of the accepted stamps ``t`` (a block's)."""
+        i = self._ahead_i
+        self._ahead_i = i + len(t)
+        return self._ahead_x[i:i + len(t)]
 
     def _accept_block(self, t, w, f, states: SampleStates | None = None, at: int = 0,
                       want=None, views=None) -> int:
@@ -522,14 +594,17 @@ class Aligner(EventSource, AttitudeReadout):
         units-check window closing that would flag the rates. Returns how many.
         ``states``: filled from ``at`` with the outputs after each sample (uniform
         intervals only, :meth:`update_states`)."""
-        dts = np.diff(t, prepend=self.t_last)
         if self._units is not None:
-            m = self._units.add_block(dts, w, f)
+            # (the units check over the stamps' intervals, as one by one)
+            m = self._units.add_block(np.diff(t, prepend=self._stamp_last), w, f)
             if m < len(t):
                 if m == 0:
                     return 0
-                t, w, f, dts = t[:m], w[:m], f[:m], dts[:m]
-        self.t_last = self._t_prev_raw = self._force_ok = float(t[-1])
+                t, w, f = t[:m], w[:m], f[:m]
+        self._stamp_last = self._t_prev_raw = self._force_ok = float(t[-1])
+        t = self._take_instants(t)          # from here on, the samples' instants
+        dts = np.diff(t, prepend=self.t_last)
+        self.t_last = float(t[-1])
         used0 = self.samples_used
         self.samples_used += len(t)
         vsel = (np.flatnonzero(views[at:at + len(t)]) if states is not None
@@ -726,7 +801,9 @@ class Aligner(EventSource, AttitudeReadout):
         self._jump = j
         if j[1] >= JUMP_CONFIRM:
             self._jump = None
-            self.t_last = self._t_prev_raw = t
+            self.t_last = self._t_prev_raw = self._stamp_last = t
+            self._new_clock()               # a new time line
+            self._clock.time(t)
             self.events["time_jump"] += 1
         return self._reject("time_jump", t)
 
@@ -746,11 +823,12 @@ class Aligner(EventSource, AttitudeReadout):
                 why = "rate_too_high"
             if why is not None:
                 return self._reject(why, t)
-            self.t_first = self.t_last = self._t_prev_raw = self._force_ok = t
+            self.t_first = self.t_last = self._instant(t)
+            self._stamp_last = self._t_prev_raw = self._force_ok = t
             self._recent.push(0.0, w, f)
             self.events["first_sample"] += 1
             return 0
-        dt = t - self.t_last
+        dt = t - self._stamp_last
         if dt == 0.0:
             return self._reject("duplicate_stamp", t)
         if dt < 0.0:
@@ -771,7 +849,9 @@ class Aligner(EventSource, AttitudeReadout):
                 # statistics.median: the same value, without numpy.ma (12 ms to import)
                 self.nominal_dt = float(statistics.median(self._dt_seen))
         nom = self.nominal_dt
-        if nom is not None and dt < c.min_dt_ratio * nom:
+        if nom is not None and dt < c.min_dt_ratio * nom and not self._clock.jittering:
+            # (stamps that jitter come that close: the clock gives the sample its instant.
+            # A block stops before such a stamp, so the clock is where this sample finds it)
             return self._reject("dt_too_small", t)
         why = self._static_reason(f0, f1, f2)
         force_var = 0.0
@@ -784,7 +864,7 @@ class Aligner(EventSource, AttitudeReadout):
                 # glitch of the accelerometer), which its covariance takes; a true reading
                 # errs by nothing
                 d = f - f_ref
-                force_var = float(d @ d) * dt * dt
+                force_var = float(d @ d)    # (times the interval squared, below)
                 why = None
         elif why is None:
             self._force_ok = t
@@ -797,10 +877,15 @@ class Aligner(EventSource, AttitudeReadout):
             if verdict is not None:
                 self._units_verdict(verdict, t)
             if self.units_suspect:
-                self.t_last = t
+                self._stamp_last, self.t_last = t, self._instant(t)
                 return self._reject("rates_look_like_deg_per_s", t)
         if w_norm > c.max_angular_rate:
             return self._reject("rate_too_high", t)
+        # the sample's instant on the IMU's clock: its interval from the last one is
+        # integrated (the stamps' interval unless they jitter)
+        x = self._instant(t)
+        dt = x - self.t_last
+        force_var = force_var * dt * dt
         gap, hole, bridge = 0.0, (0.0, 0.0), None
         w_in, f_in = w, f
         if nom is not None and dt > HOLE_RATIO * nom:
@@ -823,17 +908,24 @@ class Aligner(EventSource, AttitudeReadout):
                 # one noisy sample multiplies its noise by the hole's length). The step then
                 # integrates the interval's mean of the two.
                 means, held, (wm, fm) = rec.bridge_errors(missing, nom, w, f)
-                hole = list(held)
+                err_m, err_h = means, held
+                if x != t:
+                    # (a jittering stamp: the clock bridges a lost sample at the stamp after
+                    # the one that counted it, which took the lost one's place, one interval
+                    # early: the bridge's error over one interval more)
+                    err_m, err_h, _ = rec.bridge_errors(missing + nom, nom, w, f)
+                hole = list(err_h)
                 if means[0] < held[0]:
-                    w, hole[0], dR = (wm * missing + w * nom) / dt, means[0], None
+                    w, hole[0], dR = (wm * missing + w * nom) / dt, err_m[0], None
                 if means[1] < held[1]:
-                    f, hole[1] = (fm * missing + f * nom) / dt, means[1]
+                    f, hole[1] = (fm * missing + f * nom) / dt, err_m[1]
                 hole = tuple(hole)
             self.events["missing_samples"] += max(1, int(round(missing / nom)))
         if force_var > 0.0:
             hole = (hole[0], hole[1] + force_var)
             self.events["force_out_of_range"] += 1
-        self.t_last = t
+        self.t_last = x
+        self._stamp_last = t
         self.samples_used += 1
         self._recent.push(dt, w_in, f_in)
         fl = self.filter
