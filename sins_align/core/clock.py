@@ -129,17 +129,8 @@ class SampleClock:
                 return t
             return np.concatenate((t[:k], self.times(t[k:])))
         if not self.jittering:
-            if n == 1:                      # (a live stream's sample, in floats)
-                s = float(t[0])
-                d = s - self._last
-                T = self.period
-                m = max(round(d / T), 1)
-                if abs(d - m * T) <= TOLERANCE * T:
-                    if m == 1:
-                        self.period = d
-                    self._last = s
-                    self._seen += 1
-                    return t
+            if n == 1 and self._on_clock(float(t[0])):     # (a live stream's sample)
+                return t
             d = np.diff(np.concatenate(([self._last], t)))
             T = self.period
             m = np.maximum(np.rint(d / T), 1.0)
@@ -170,17 +161,24 @@ class SampleClock:
     def time(self, s: float) -> float:
         """The instant of one accepted stamp ``s`` (what ``times([s])[0]`` gives, in
         floats: a live stream's sample on the IMU's own clock costs a few float operations)."""
-        T = self.period
-        if T is not None and not self.jittering:
-            d = s - self._last
-            m = max(round(d / T), 1)
-            if abs(d - m * T) <= TOLERANCE * T:
-                if m == 1:
-                    self.period = d
-                self._last = s
-                self._seen += 1
-                return s
+        if self.period is not None and not self.jittering and self._on_clock(s):
+            return s
         return float(self.times(np.array([s]))[0])
+
+    def _on_clock(self, s: float) -> bool:
+        """Whether the stamp ``s`` lies on the steady clock so far (a whole number of
+        intervals after the last one, within the tolerance), taken if it does; in floats.
+        (Not jittering, the period known.)"""
+        T = self.period
+        d = s - self._last
+        m = max(round(d / T), 1)
+        if abs(d - m * T) > TOLERANCE * T:
+            return False
+        if m == 1:
+            self.period = d
+        self._last = s
+        self._seen += 1
+        return True
 
     def _start_fit(self, e):
         """The fit through the stamps ``e`` (one interval apart, the last at count 0)."""
