@@ -156,8 +156,9 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
                        last_reset_reason: str, feed, topic: str,
                        silent_s: float | None) -> tuple[int, str, list, int]:
     """align_node's diagnostics for an in-motion estimator (the public interface only:
-    ``status``, ``aligned``, ``heading_observable``, ``std_enu_deg``, ``rejected``,
-    ``events``, ``bias_gyro``, ``bias_accel``, ``velocity``, ``t_last``) plus what the
+    ``status``, ``aligned``, ``heading_observable``, ``reference_consistent``,
+    ``reference_nis``, ``noise_scale``, ``std_enu_deg``, ``rejected``, ``events``,
+    ``bias_gyro``, ``bias_accel``, ``velocity``, ``t_last``) plus what the
     :class:`~sins_align.ros.reference.ReferenceFeed` counted.
 
     ``silent_s``: how long the velocity topic has been silent while IMU data came (None:
@@ -171,11 +172,11 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
     msg = MOTION_STATE_TEXT.get(st, STATE_TEXT.get(st, st))
     if st != "waiting" and not est.heading_observable:
         msg += " (heading not observable yet: it needs horizontal acceleration or turns)"
-    if not getattr(est, "reference_consistent", True):
+    consistent = bool(est.reference_consistent)
+    if not consistent:
         level = ERROR
-        nis = getattr(est, "reference_nis", est.nis)
-        msg = (f"velocity reference contradicts the IMU (mean NIS {nis:.0f}): check "
-               f"velocity_frame (enu/ned), lever_arm, velocity_latency, velocity_noise; "
+        msg = (f"velocity reference contradicts the IMU (mean NIS {est.reference_nis:.0f}): "
+               f"check velocity_frame (enu/ned), lever_arm, velocity_latency, velocity_noise; "
                f"attitude published as unknown")
     std = est.std_enu_deg
     bg, ba = bias_estimates(est)
@@ -187,8 +188,8 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
         ("state", st),
         ("aligned", str(bool(est.aligned)).lower()),
         ("heading_observable", str(bool(est.heading_observable)).lower()),
-        ("reference_consistent", str(bool(getattr(est, "reference_consistent", True))).lower()),
-        ("velocity_noise_scale", f"{float(getattr(est, 'noise_scale', 1.0)):.3f}"),
+        ("reference_consistent", str(consistent).lower()),
+        ("velocity_noise_scale", f"{float(est.noise_scale):.3f}"),
         ("std_east_deg", f"{std[0]:.6f}"),
         ("std_north_deg", f"{std[1]:.6f}"),
         ("std_up_deg", f"{std[2]:.6f}"),

@@ -919,17 +919,9 @@ class InvariantEKF:
         ``slip_updates`` (how many updates it lasts), so that the updates of one turn together
         claim no more than one. Each filter of the bank takes its own speed and rate.
         ``consider_heading``: as :meth:`update_velocity`'s (a parked vehicle)."""
-        if self.i_nhm is None:
-            return self._update_side(axis, None, sigma, nis_limit, slip, slip_updates,
-                                     consider_heading)
-        u = self.nhc_mount[:, :, axis]                                  # (K, 3), IMU axes
-        return self._update_side(axis, u, sigma, nis_limit, slip, slip_updates,
-                                 consider_heading)
-
-    def _update_side(self, axis, u, sigma, nis_limit, slip, slip_updates,
-                     consider_heading=False):
-        """:meth:`update_lateral` along the IMU's ``axis`` (u None) or along the unit vectors
-        u (K, 3) of the vehicle's side in IMU axes (the ``nhc_mount`` states)."""
+        # the vehicle's side: the IMU's ``axis`` (u None), or the unit vectors u (K, 3) in
+        # IMU axes of the nhc_mount states
+        u = None if self.i_nhm is None else self.nhc_mount[:, :, axis]
         C = self.C
         vb = np.einsum("kji,kj->ki", C, self.v)
         if u is None:
