@@ -614,6 +614,28 @@ def vector3_stamped_cdr(sec: int, nanosec: int, frame_id: str, xyz) -> bytes:
     return CDR_LE + head + bytes(-len(head) % 8) + _VEC3.pack(*map(float, xyz))
 
 
+def vector3_stamped_cdr_many(sec, nanosec, frame_id: str, xyz) -> list[bytes]:
+    """:func:`vector3_stamped_cdr` of many messages of one ``frame_id`` (sec, nanosec (n,),
+    xyz (n, 3)), laid out in one numpy record array: the same bytes."""
+    name = frame_id.encode()
+    head = 16 + len(name) + 1                     # CDR header, stamp, length, name, NUL
+    at = head + (-(head - 4) % 8)                 # the vector, 8-aligned from byte 4
+    dt = np.dtype({"names": ["cdr", "sec", "nsec", "len", "name", "xyz"],
+                   "formats": ["V4", "<i4", "<u4", "<u4", f"V{at - 16}", ("<f8", 3)],
+                   "offsets": [0, 4, 8, 12, 16, at], "itemsize": at + 24})
+    n = len(sec)
+    rows = np.zeros(n, dt)
+    rows["cdr"] = np.void(CDR_LE)
+    rows["sec"] = sec
+    rows["nsec"] = nanosec
+    rows["len"] = len(name) + 1
+    rows["name"] = np.void(name + bytes(at - 16 - len(name)))
+    rows["xyz"] = np.asarray(xyz, dtype=float)
+    data = rows.tobytes()
+    size = dt.itemsize
+    return [data[i:i + size] for i in range(0, n * size, size)]
+
+
 def diagnostic_array_cdr(sec: int, nanosec: int, frame_id: str, statuses) -> bytes:
     """A ``diagnostic_msgs/DiagnosticArray`` in ROS 2 CDR (little-endian), as rosbags and
     rclpy serialise it; ``statuses``: (level, name, message, hardware_id, [(key, value)])."""
