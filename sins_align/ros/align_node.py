@@ -127,6 +127,9 @@ def make_node_class():
                     self.reference = velocity_reference(values)
                 except ValueError as e:
                     reason = str(e)
+                    if reason == "latitude is required":
+                        reason += (" (give the IMU's geodetic latitude in deg: -p "
+                                   "latitude:=<deg>; in motion a navsat_topic can give it)")
             if reason is not None:
                 refuse_start(self, reason)
             self._pending = None
@@ -176,9 +179,11 @@ def make_node_class():
             c = self.config
             if self.motion:
                 r = self.reference
+                site = (f"latitude {c.latitude_deg:.4f} deg, longitude {c.longitude_deg:.4f}"
+                        f" deg" if not math.isnan(c.latitude_deg) else
+                        f"the position of the first fix on {self.sub_navsat.topic_name}")
                 self.get_logger().info(
-                    f"in-motion alignment at latitude {c.latitude_deg:.4f} deg, longitude "
-                    f"{c.longitude_deg:.4f} deg, vehicle {c.vehicle}; velocity reference "
+                    f"in-motion alignment at {site}, vehicle {c.vehicle}; velocity reference "
                     f"{self.sub_velocity.topic_name} ({VELOCITY_TYPES[r.type]}, {r.frame}), "
                     f"lever arm {', '.join('%g' % x for x in c.lever_arm)} m; position "
                     + (f"from {self.sub_navsat.topic_name}" if r.navsat_topic
@@ -217,12 +222,19 @@ def make_node_class():
             """Declare every parameter (:func:`declare_params`); return the first reason a
             value is bad, or None."""
             _, reason = declare_params(self, ALIGN_NODE_PARAMS)
-            if reason == "latitude is required":
-                reason += " (give the IMU's geodetic latitude in deg: -p latitude:=<deg>)"
             return reason
 
         def _alignment_values(self) -> dict:
-            return {p.name: plain(self.get_parameter(p.name).value) for p in PARAMS}
+            """The estimator's parameters (a required one left out: NaN)."""
+            from rclpy.exceptions import ParameterUninitializedException
+
+            values = {}
+            for p in PARAMS:
+                try:
+                    values[p.name] = plain(self.get_parameter(p.name).value)
+                except ParameterUninitializedException:
+                    values[p.name] = math.nan             # (declared without a value)
+            return values
 
         def _on_set_parameters(self, params) -> SetParametersResult:
             """Validate runtime changes; the new AlignConfig is applied after the set. The

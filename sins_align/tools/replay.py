@@ -241,7 +241,10 @@ def config_or_error(values: dict[str, Any]):
     topic is set), or a CliError naming the bad parameter."""
     lat = values.get("latitude")
     if lat is None or (isinstance(lat, float) and math.isnan(lat)):
-        raise CliError("latitude is required: pass --latitude DEG or set latitude in --params")
+        if not (values.get("velocity_topic") and values.get("navsat_topic")):
+            raise CliError("latitude is required: pass --latitude DEG or set latitude in "
+                           "--params (in motion, --navsat-topic can give it)")
+        values = {**values, "latitude": math.nan}      # the first fix gives it
     try:
         return estimator_config(values)
     except ValueError as e:
@@ -1365,8 +1368,10 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
     stage = "" if s["stage"] is None or ref is not None else f" ({s['stage']} pass)"
     lines = [
         f"replay {s['bag']}  topic {s['topic']}",
-        f"  config    latitude {c['latitude_deg']:.6f} deg, height {c['height_m']:g} m, "
-        f"{estimator}, grade {c['grade']}",
+        (f"  config    latitude {c['latitude_deg']:.6f} deg, height {c['height_m']:g} m, "
+         if c['latitude_deg'] is not None and math.isfinite(c['latitude_deg']) else
+         f"  config    position from {ref['navsat_topic']}, ")
+        + f"{estimator}, grade {c['grade']}",
         f"  samples   {s['samples']}{used}, rejected: {rej}",
     ]
     if ref is not None:

@@ -67,6 +67,8 @@ MOTION_REJECT_REASONS = (
     "measurement_too_late",       # a measurement stamped more than max_measurement_lag back
     "measurement_invalid",        # a measurement with a bad covariance or shape
     "undecodable",                # (align_node) a message whose bytes could not be decoded
+    "no_position",                # IMU: no position yet (latitude_deg NaN: the first
+                                  # add_position gives it)
 )
 
 MOTION_STATES = ("waiting", "aligning", "aligned")
@@ -128,7 +130,9 @@ class MotionAligner(EventSource, AttitudeReadout):
         self.t_first: float | None = None
         self.last_reject: str | None = None
         self.samples_used = 0
-        self.position = (c.latitude_deg * DEG, c.longitude_deg * DEG, c.height_m)
+        if not math.isnan(c.latitude_deg) or not hasattr(self, "position"):
+            # (latitude NaN: no position until add_position; a restart keeps the last one)
+            self.position = (c.latitude_deg * DEG, c.longitude_deg * DEG, c.height_m)
         self._init_buf: deque = deque()          # (t, gyro, accel) before the start
         self._pending: list = []                 # sorted (stamp, seq, kind, payload)
         self._seq = 0
@@ -296,6 +300,11 @@ class MotionAligner(EventSource, AttitudeReadout):
         f = np.asarray(accel, dtype=float).reshape(-1, 3)
         if not (len(t) == len(w) == len(f)):
             raise ValueError("stamp, gyro and accel must have the same number of samples")
+        if math.isnan(self.position[0]):
+            # no position yet (latitude_deg NaN): Earth rate and gravity are unknown
+            for x in t.tolist():
+                self._reject("no_position", x if math.isfinite(x) else None)
+            return 0
         good, jump = self._check(t, w, f)
         end = len(t) if jump is None else jump
         idx = np.flatnonzero(good[:end])

@@ -21,7 +21,9 @@ class MotionConfig:
     Attributes
     ----------
     latitude_deg, longitude_deg : deg; height_m : m — initial position (a NavSatFix given to
-        :meth:`MotionAligner.add_position` replaces it).
+        :meth:`MotionAligner.add_position` replaces it). ``latitude_deg`` NaN: none, the
+        first position given sets it (and longitude and height): IMU samples before it are
+        refused ('no_position').
     specs : SensorSpecs or a grade name ('navigation', 'tactical', 'consumer'): the bias
         priors and noise densities of the filter.
     gyro_scale_std : 1-sigma gyro scale-factor error per axis (fraction, e.g. 0.003 for a
@@ -189,8 +191,10 @@ class MotionConfig:
                              f"{self.feedback_fraction!r}")
         if self.nhc_axis not in (0, 1, 2):
             raise ValueError(f"nhc_axis must be 0, 1 or 2, got {self.nhc_axis!r}")
-        if not (-90.0 < self.latitude_deg < 90.0):
-            raise ValueError(f"latitude_deg must be within (-90, 90), got {self.latitude_deg!r}")
+        if not (-90.0 < self.latitude_deg < 90.0 or (isinstance(self.latitude_deg, float)
+                                                     and math.isnan(self.latitude_deg))):
+            raise ValueError(f"latitude_deg must be within (-90, 90) (or NaN: from the first "
+                             f"position), got {self.latitude_deg!r}")
         positive = ("velocity_noise", "nhc_noise", "nhc_period", "init_time",
                     "inconsistent_nis", "inconsistent_memory",
                     "attitude_noise_deg", "nis_inflate", "max_gap", "max_angular_rate",
