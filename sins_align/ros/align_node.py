@@ -68,8 +68,11 @@ REASON_TEXT = {
                                    "quasi-static?)",
     "rate_too_high": "|angular_velocity| above max_angular_rate (deg/s instead of rad/s, "
                      "or real motion)",
-    "rates_look_like_deg_per_s": "gyro and accelerometer tilt disagree: angular_velocity "
-                                 "looks like deg/s (REP-145 wants rad/s)",
+    "rates_look_like_deg_per_s": "gyro and accelerometer tilt disagree beyond the gyro "
+                                 "specs: angular_velocity looks like deg/s (REP-145 wants "
+                                 "rad/s), or the gyro is far worse than the configured "
+                                 "grade (a MEMS as 'navigation', the default: set grade, "
+                                 "gyro_bias)",
     "undecodable": "the message bytes are not a valid sensor_msgs/Imu",
 }
 

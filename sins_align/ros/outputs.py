@@ -32,7 +32,8 @@ STATE_TEXT = {
     "aligning": "aligning",
     "aligned": "aligned",
     "disturbed": "disturbed: the platform is not quasi-static",
-    "fault": "fault: gyro rates do not match the accelerometer (deg/s sent as rad/s?)",
+    "fault": "fault: gyro rates do not match the accelerometer (deg/s sent as rad/s? or a "
+             "gyro far worse than the configured grade: set grade)",
 }
 
 
