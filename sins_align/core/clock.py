@@ -77,8 +77,36 @@ TOLERANCE = 1e-4
 #: intervals over which the instants given are drawn to the fit (a count too many, a
 #: reception delay mistaken for a lost sample, is given back so)
 GIVE_BACK = 8.0
+#: a lost sample among the first stamps costs this many variances of the best fit's
+LOST_COST = 10.0
+#: the long line's memory is this fraction of the time since the fit began (up to MEMORY)
+GROW = 0.5
+#: s: a sample counted too many is taken back once the fit is this old (before, its
+#: period may be what is wrong)
+YOUNG = 10.0
+#: the instants are drawn towards the long line over this fraction of the stamps it holds
+PULL = 0.25
+#: intervals: at most
+PULL_MAX = 750.0
+#: intervals: the instants farther than this from the long line are drawn to it over
+#: GIVE_BACK intervals (up to it)
+BAND = 0.05
 #: stamps given as they are before the clock starts (its first line is through them)
 START = 16
+_DEBUG = False
+_LOG = []
+#: stamps after one that decide the samples lost before it (twice as many while the
+#: stamps scatter by over a quarter of the interval)
+DECIDE = 2
+#: the fraction of the stamps late by over half an interval (a skewed scatter: reception
+#: delays) beyond which twice DECIDE stamps decide; below RARE, one
+LATE = 0.02
+RARE = 1e-4
+#: samples lost are bridged at once beyond this many RMS of the stamps' scatter
+IMMEDIATE = 8.0
+#: a lost sample is counted when the stamps after it lie over 0.5 + MARGIN intervals late
+#: (one not counted yet is counted at the next stamp; one made up is given back)
+MARGIN = 0.0
 
 
 class SampleClock:
@@ -96,8 +124,11 @@ class SampleClock:
         self._early: list = []               # the first stamps (given as they are)
         self._last: float | None = None      # the last instant given
         self._ref = 0.0                      # the fit's instant at the last count
-        self._wait = 0.0                     # lost samples counted, not confirmed
-        self._owed = 0.0                     # lost samples counted, not bridged yet
+        self._buf: list = []                 # stamps whose lost samples are undecided
+        self._pc = 0.0                       # the last stamp's count past the decided one
+        self._var = 0.0                      # the stamps' variance about the counting line
+        self._debt = 0.0                     # intervals bridged too many, to give back
+        self._late = 0.0                     # the fraction of stamps late by half an interval
         self._seen = 0                       # stamps on the steady clock in a row
         self._sums: list | None = None       # (S0, S1, S2, Sy, Sky, lambda): the count's
         self._long: list | None = None       # and the instants' line
@@ -124,7 +155,7 @@ class SampleClock:
             if np.all(np.abs(d - np.maximum(np.rint(d / T), 1.0) * T) <= TOLERANCE * T):
                 self.period, self._seen = T, len(e)
             else:
-                self._start_fit(e)
+                self._start_fit(e, _start_counts(e))
             if k == n:
                 return t
             return np.concatenate((t[:k], self.times(t[k:])))
@@ -180,72 +211,126 @@ class SampleClock:
         self._seen += 1
         return True
 
-    def _start_fit(self, e):
-        """The fit through the stamps ``e`` (one interval apart, the last at count 0)."""
-        T0 = (e[-1] - e[0]) / (len(e) - 1)
-        k = np.arange(1 - len(e), 1, dtype=float)
+    def _start_fit(self, e, k=None):
+        """The fit through the stamps ``e`` at the counts ``k`` (one interval apart if
+        None), the last at count 0."""
+        if k is None:
+            k = np.arange(len(e), dtype=float)
+        k = k - k[-1]
+        T0 = (e[-1] - e[0]) / -k[0]
         y = e - e[-1]
         lines = []
-        for mem in (COUNT_MEMORY, MEMORY):
+        for mem in (COUNT_MEMORY, COUNT_MEMORY):
             lam = math.exp(-1.0 / max(2.0, mem / T0))
             w = lam ** -k
             lines.append([w.sum(), w @ k, w @ (k * k), w @ y, w @ (k * y), lam])
-        S0, S1, S2, Sy, Sky, _ = lines[0]
+        S0, S1, S2, Sy, Sky, _ = lines[1]
         det = S0 * S2 - S1 * S1
-        a = (Sy * S2 - S1 * Sky) / det
         self.period = (S0 * Sky - S1 * Sy) / det
+        S0, S1, _, Sy, _, _ = lines[0]
+        a = (Sy - self.period * S1) / S0
+        r = y - a - self.period * k
+        self._var = float(r @ r) / len(r)
+        self._late = float(np.mean(r > 0.5 * self.period))
         # (the times' origin: the counting line at the last stamp)
         for line in lines:
             line[3] -= a * line[0]
             line[4] -= a * line[1]
         self._sums, self._long = lines
         self._ref = float(e[-1]) + a
+        self._buf = []
+        self._pc = self._debt = 0.0
+        self._age = COUNT_MEMORY / GROW
         self.jittering = True
         self._seen = 0
-        self._wait = self._owed = 0.0
 
     def _one(self, s: float) -> float:
         """The instant of one stamp (the per-sample fit)."""
         T, ref, last = self.period, self._ref, self._last
-        S0, S1, S2, Sy, Sky, lam = self._sums
-        a = (Sy * S2 - S1 * Sky) / (S0 * S2 - S1 * S1)   # the line at the last count
-        # the count moves on by the whole intervals nearest to the stamp's distance: one at
-        # least, less the lost samples counted but not confirmed yet (a stamp that comes
-        # early against them says a stamp before was late, not that samples were lost)
-        m = max(1.0 - self._wait, float(round((s - ref - a) / T)))
-        y = s - ref
-        lines = []
-        for S0, S1, S2, Sy, Sky, lam in (self._sums, self._long):
-            # the counts move on by m, the weights decay, the stamp joins at count 0
-            S2 = S2 - 2.0 * m * S1 + m * m * S0
-            S1 = S1 - m * S0
-            Sky = Sky - m * Sy
-            dec = lam ** m
-            S0, S1, S2, Sy, Sky = S0 * dec + 1.0, S1 * dec, S2 * dec, Sy * dec + y, Sky * dec
+        S0, S1, _, Sy, _, _ = self._sums
+        a = (Sy - T * S1) / S0              # the counting line at the last decided count
+        buf = self._buf
+        # the stamp's count, the undecided ones before it taken one interval apart (and
+        # the samples bridged at once before them): samples lost here are bridged at once
+        # only beyond what the stamps' scatter could make of a late stamp
+        r0 = (s - ref - a) / T - self._pc - 1.0
+        rho = math.sqrt(self._var) / T
+        now = max(0.0, float(round(r0 - IMMEDIATE * rho)))
+        buf.append((s, now))
+        self._pc += 1.0 + now
+        bridged = now
+        late = self._late
+        keep = 1 if late <= RARE else DECIDE if late <= LATE else 2 * DECIDE
+        while buf and (len(buf) > keep
+                       or abs((buf[0][0] - ref - a) / T - 1.0) < 0.5):
+            # the oldest undecided stamp: the samples lost before it are those that every
+            # stamp from it on shows (a late stamp moves itself only, a lost sample every
+            # later stamp): the least of their distances from the counting line
+            c, least, most = 0.0, math.inf, -math.inf
+            for j, (sj, nj) in enumerate(buf):
+                c += 1.0 + (nj if j else 0.0)
+                r = (sj - ref - a) / T - c
+                least, most = min(least, r), max(most, r)
+            s0, n0 = buf.pop(0)
+            # (every one of them early by over half an interval, the period known: a sample
+            # counted too many before, taken back: this stamp at the count of the one
+            # before. Not while the long line is young: its period may be what is wrong)
+            n = max(0.0, float(round(least - MARGIN)))
+            if most < -0.5 and self._age >= YOUNG:
+                n = -1.0
+            if _DEBUG and (n or n0):
+                print("decide", s0, n0, n, least, [round((sj - ref - a) / T, 2) for sj, _ in buf], rho, keep)
+            bridged += n - n0
+            m = 1.0 + n
+            self._pc -= 1.0 + n0
+            y = s0 - ref
+            r = y - a - m * T
+            self._var += (min(r * r, T * T) - self._var) * (1.0 - self._sums[5])
+            self._late += ((r > 0.5 * T) - self._late) * (1.0 - self._long[5])
+            lines = []
+            for S0, S1, S2, Sy, Sky, lam in (self._sums, self._long):
+                # the counts move on by m, the weights decay, the stamp joins at count 0
+                S2 = S2 - 2.0 * m * S1 + m * m * S0
+                S1 = S1 - m * S0
+                Sky = Sky - m * Sy
+                dec = lam ** m
+                lines.append([S0 * dec + 1.0, S1 * dec, S2 * dec, Sy * dec + y, Sky * dec,
+                              lam])
+            S0, S1, S2, Sy, Sky, _ = lines[1]
             det = S0 * S2 - S1 * S1
-            lines.append([S0, S1, S2, Sy, Sky, lam, (S0 * Sky - S1 * Sy) / det,
-                          (Sy * S2 - S1 * Sky) / det])
-        T, a = lines[0][6], lines[0][7]                 # the counting line
-        TL, fit = lines[1][6], ref + lines[1][7]        # the long one: the instants
-        if abs(fit - ref - a) > 0.5 * T:    # (not while the counts slip: the counting line)
-            TL, fit = T, ref + a
-        # the instant: one interval on, and the lost samples owed. A stamp that counts one
-        # lost sample waits for the next stamp to confirm it (one interval on from the
-        # count; a stamp late by more than half an interval looks the same until then) and
-        # it is bridged there; more than one is bridged at once (no stamp is that late)
-        wait, owed = self._wait + m - 1.0, self._owed
-        if m == 1.0:                        # on time: what was counted is confirmed
-            bridged, owed, wait = owed, 0.0, 0.0
-        elif m == 2.0:
-            bridged, owed = 0.0, owed + 1.0
-        elif m > 2.0:
-            bridged, owed = owed + m - 1.0, 0.0
-        else:                               # early: a stamp before was late
-            bridged, owed = 0.0, min(owed, max(wait, 0.0))
-        self._wait, self._owed = wait, owed
-        x = last + (1.0 + bridged) * TL
-        # drawn towards the long line (less what is owed) over GIVE_BACK intervals
-        x += (fit - owed * TL - x) / GIVE_BACK
+            T = (S0 * Sky - S1 * Sy) / det              # the period: the long line's
+            if self._age < MEMORY / GROW:
+                # (its memory grows with the fit's age: the first stamps' counts, a lost
+                # sample among them, are not kept for MEMORY s)
+                self._age += m * T
+                lines[1][5] = math.exp(-1.0 / max(2.0, min(MEMORY, GROW * self._age) / T))
+            S0, S1, _, Sy, _, _ = lines[0]
+            a = (Sy - T * S1) / S0
+            # the times' origin moves to the counting line at this count
+            for line in lines:
+                line[3] -= a * line[0]
+                line[4] -= a * line[1]
+            self._sums, self._long = lines
+            ref += a
+            a = 0.0
+        S0, S1, S2, Sy, Sky, _ = self._long
+        fit = ref + (Sy * S2 - S1 * Sky) / (S0 * S2 - S1 * S1) + self._pc * T
+        if abs(fit - ref - self._pc * T) > 0.5 * T:   # (the lines apart: the counting one)
+            fit = ref + self._pc * T
+        if _DEBUG:
+            _LOG.append((s, fit, ref + self._pc * T, T, self._age))
+        # the instant: one interval on, and the lost samples bridged here; drawn towards
+        # the long line over GIVE_BACK intervals (an interval bridged too many is given back)
+        # (an interval bridged at once that the stamps after it did not confirm is given back
+        # over GIVE_BACK intervals)
+        debt = self._debt - min(bridged, 0.0)
+        back = min(debt, 1.0 / GIVE_BACK)
+        self._debt = debt - back
+        x = last + (1.0 + max(bridged, 0.0) - back) * T
+        d = fit - x
+        x += d / min(max(GIVE_BACK, PULL * S0), PULL_MAX)
+        if abs(d) > BAND * T:               # (far from the line: fast, up to BAND)
+            x += math.copysign(abs(d) - BAND * T, d) / GIVE_BACK
         r = s - x
         if abs(r) <= TOLERANCE * T:
             x = s
@@ -257,16 +342,33 @@ class SampleClock:
             self.rms = math.sqrt(self._r2[0] / self._r2[1])
         if x <= last:                       # (kept increasing)
             x = last + 0.5 * T
-        # the times' origin moves to the counting line at this count
-        for line in lines:
-            line[3] -= a * line[0]
-            line[4] -= a * line[1]
-            del line[6:]
-        self._sums, self._long = lines
-        self._ref = ref + a
+        self._ref = ref
         self._last = x
         self.period = T
-        if self._seen >= lines[0][0]:       # back on the IMU's own clock: untouched again
+        if self._seen >= self._sums[0]:     # back on the IMU's own clock: untouched again
             self.jittering = False
             self._sums = self._long = None
+            self._buf = []
         return x
+
+
+def _start_counts(e) -> np.ndarray:
+    """The counts of the first stamps ``e``: one interval apart, or with one or two samples
+    lost among them where that fits the stamps by far better (a line through them with
+    one lost sample unseen is 1/START off in its period, and the counts of the first
+    seconds with it)."""
+    n = len(e)
+    base = np.arange(n, dtype=float)
+    hyp = [base]
+    for i in range(1, n):
+        hyp.append(base + (base >= i))
+        for j in range(i, n):
+            hyp.append(base + (base >= i) + (base >= j))
+    K = np.array(hyp)
+    y = e - e.mean()
+    Kc = K - K.mean(axis=1, keepdims=True)
+    slope = (Kc @ y) / np.einsum("ij,ij->i", Kc, Kc)
+    rss = ((y - slope[:, None] * Kc) ** 2).sum(axis=1)
+    lost = K[:, -1] - (n - 1)
+    var = rss.min() / (n - 2)
+    return K[int(np.argmin(rss + LOST_COST * var * lost))]
