@@ -104,9 +104,6 @@ LATE = 0.02
 RARE = 1e-4
 #: samples lost are bridged at once beyond this many RMS of the stamps' scatter
 IMMEDIATE = 8.0
-#: a lost sample is counted when the stamps after it lie over 0.5 + MARGIN intervals late
-#: (one not counted yet is counted at the next stamp; one made up is given back)
-MARGIN = 0.0
 
 
 class SampleClock:
@@ -129,6 +126,7 @@ class SampleClock:
         self._var = 0.0                      # the stamps' variance about the counting line
         self._debt = 0.0                     # intervals bridged too many, to give back
         self._late = 0.0                     # the fraction of stamps late by half an interval
+        self._lags: dict = {}                # instant -> stamps its bridge came late by
         self._seen = 0                       # stamps on the steady clock in a row
         self._sums: list | None = None       # (S0, S1, S2, Sy, Sky, lambda): the count's
         self._long: list | None = None       # and the instants' line
@@ -196,6 +194,11 @@ class SampleClock:
             return s
         return float(self.times(np.array([s]))[0])
 
+    def lag(self, x: float) -> int:
+        """How many stamps after its place the samples lost before the instant ``x`` (one
+        given lately) were bridged (0: at it): the samples between took their place."""
+        return self._lags.pop(x, 0)
+
     def _on_clock(self, s: float) -> bool:
         """Whether the stamp ``s`` lies on the steady clock so far (a whole number of
         intervals after the last one, within the tolerance), taken if it does; in floats.
@@ -254,13 +257,27 @@ class SampleClock:
         # the samples bridged at once before them): samples lost here are bridged at once
         # only beyond what the stamps' scatter could make of a late stamp
         r0 = (s - ref - a) / T - self._pc - 1.0
-        rho = math.sqrt(self._var) / T
-        now = max(0.0, float(round(r0 - IMMEDIATE * rho)))
-        buf.append((s, now))
-        self._pc += 1.0 + now
-        bridged = now
         late = self._late
         keep = 1 if late <= RARE else DECIDE if late <= LATE else 2 * DECIDE
+        bridged, lag = 0.0, 0
+        if buf and keep <= DECIDE:
+            # the samples lost before the stamp before, as this stamp sees them too, are
+            # bridged here (the stamps after it decide for the lines; a sample bridged too
+            # many is given back, one not bridged yet bridged when they decide)
+            sp, n_p = buf[-1]
+            more = float(round(min((sp - ref - a) / T - self._pc, r0)))
+            if more >= 1.0:
+                buf[-1] = (sp, n_p + more)
+                self._pc += more
+                r0 -= more
+                bridged, lag = more, 1
+        # samples lost before this stamp are bridged at once beyond one (a late stamp is
+        # not taken for a lost sample) and what the stamps' scatter could make of it
+        rho = math.sqrt(self._var) / T
+        now = max(0.0, float(round(r0 - 1.0 - IMMEDIATE * rho)))
+        buf.append((s, now))
+        self._pc += 1.0 + now
+        bridged += now
         while buf and (len(buf) > keep
                        or abs((buf[0][0] - ref - a) / T - 1.0) < 0.5):
             # the oldest undecided stamp: the samples lost before it are those that every
@@ -275,9 +292,11 @@ class SampleClock:
             # (every one of them early by over half an interval, the period known: a sample
             # counted too many before, taken back: this stamp at the count of the one
             # before. Not while the long line is young: its period may be what is wrong)
-            n = max(0.0, float(round(least - MARGIN)))
+            n = max(0.0, float(round(least)))
             if most < -0.5 and self._age >= YOUNG:
                 n = -1.0
+            if n > n0:
+                lag = len(buf)
             if _DEBUG and (n or n0):
                 print("decide", s0, n0, n, least, [round((sj - ref - a) / T, 2) for sj, _ in buf], rho, keep)
             bridged += n - n0
@@ -342,6 +361,10 @@ class SampleClock:
             self.rms = math.sqrt(self._r2[0] / self._r2[1])
         if x <= last:                       # (kept increasing)
             x = last + 0.5 * T
+        if lag and bridged > 0.0:
+            self._lags[x] = lag
+            if len(self._lags) > 64:
+                del self._lags[next(iter(self._lags))]
         self._ref = ref
         self._last = x
         self.period = T
