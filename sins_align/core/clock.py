@@ -93,15 +93,15 @@ PULL_MAX = 750.0
 BAND = 0.05
 #: stamps given as they are before the clock starts (its first line is through them)
 START = 16
-_DEBUG = False
-_LOG = []
 #: stamps after one that decide the samples lost before it (twice as many while the
 #: stamps scatter by over a quarter of the interval)
 DECIDE = 2
 #: the fraction of the stamps late by over half an interval (a skewed scatter: reception
-#: delays) beyond which twice DECIDE stamps decide; below RARE, one
+#: delays) beyond which twice DECIDE stamps decide (and while the fit is YOUNG); below
+#: RARE, with an RMS scatter of NARROW intervals at most, one
 LATE = 0.02
 RARE = 1e-4
+NARROW = 0.1
 #: samples lost are bridged at once beyond this many RMS of the stamps' scatter
 IMMEDIATE = 8.0
 
@@ -128,8 +128,9 @@ class SampleClock:
         self._late = 0.0                     # the fraction of stamps late by half an interval
         self._lags: dict = {}                # instant -> stamps its bridge came late by
         self._seen = 0                       # stamps on the steady clock in a row
-        self._sums: list | None = None       # (S0, S1, S2, Sy, Sky, lambda): the count's
-        self._long: list | None = None       # and the instants' line
+        self._sums: list | None = None       # the counting line (S0, S1, Sy, lambda)
+        self._long: list | None = None       # the long one (S0, S1, S2, Sy, Sky, lambda)
+        self._age = 0.0                      # s since the fit began (its memory grows)
         self._r2 = [0.0, 0]
 
     def times(self, t) -> np.ndarray:
@@ -230,16 +231,16 @@ class SampleClock:
         S0, S1, S2, Sy, Sky, _ = lines[1]
         det = S0 * S2 - S1 * S1
         self.period = (S0 * Sky - S1 * Sy) / det
-        S0, S1, _, Sy, _, _ = lines[0]
+        S0, S1, _, Sy, _, lam = lines[0]
         a = (Sy - self.period * S1) / S0
         r = y - a - self.period * k
         self._var = float(r @ r) / len(r)
         self._late = float(np.mean(r > 0.5 * self.period))
         # (the times' origin: the counting line at the last stamp)
-        for line in lines:
-            line[3] -= a * line[0]
-            line[4] -= a * line[1]
-        self._sums, self._long = lines
+        S0, S1, S2, Sy, Sky, lam = lines[1]
+        self._long = [S0, S1, S2, Sy - a * S0, Sky - a * S1, lam]
+        S0, S1, _, Sy, _, lam = lines[0]
+        self._sums = [S0, S1, Sy - a * S0, lam]
         self._ref = float(e[-1]) + a
         self._buf = []
         self._pc = self._debt = 0.0
@@ -250,15 +251,18 @@ class SampleClock:
     def _one(self, s: float) -> float:
         """The instant of one stamp (the per-sample fit)."""
         T, ref, last = self.period, self._ref, self._last
-        S0, S1, _, Sy, _, _ = self._sums
-        a = (Sy - T * S1) / S0              # the counting line at the last decided count
+        C0, C1, Cy, _ = self._sums
+        a = (Cy - T * C1) / C0              # the counting line at the last decided count
         buf = self._buf
         # the stamp's count, the undecided ones before it taken one interval apart (and
         # the samples bridged at once before them): samples lost here are bridged at once
         # only beyond what the stamps' scatter could make of a late stamp
         r0 = (s - ref - a) / T - self._pc - 1.0
-        late = self._late
-        keep = 1 if late <= RARE else DECIDE if late <= LATE else 2 * DECIDE
+        late, rho = self._late, math.sqrt(self._var) / T
+        if late > LATE or self._age < YOUNG:
+            keep = 2 * DECIDE
+        else:
+            keep = 1 if late <= RARE and rho <= NARROW else DECIDE
         bridged, lag = 0.0, 0
         if buf and keep <= DECIDE:
             # the samples lost before the stamp before, as this stamp sees them too, are
@@ -273,7 +277,6 @@ class SampleClock:
                 bridged, lag = more, 1
         # samples lost before this stamp are bridged at once beyond one (a late stamp is
         # not taken for a lost sample) and what the stamps' scatter could make of it
-        rho = math.sqrt(self._var) / T
         now = max(0.0, float(round(r0 - 1.0 - IMMEDIATE * rho)))
         buf.append((s, now))
         self._pc += 1.0 + now
@@ -297,51 +300,43 @@ class SampleClock:
                 n = -1.0
             if n > n0:
                 lag = len(buf)
-            if _DEBUG and (n or n0):
-                print("decide", s0, n0, n, least, [round((sj - ref - a) / T, 2) for sj, _ in buf], rho, keep)
             bridged += n - n0
             m = 1.0 + n
             self._pc -= 1.0 + n0
             y = s0 - ref
             r = y - a - m * T
-            self._var += (min(r * r, T * T) - self._var) * (1.0 - self._sums[5])
+            self._var += (min(r * r, T * T) - self._var) * (1.0 - self._sums[3])
             self._late += ((r > 0.5 * T) - self._late) * (1.0 - self._long[5])
-            lines = []
-            for S0, S1, S2, Sy, Sky, lam in (self._sums, self._long):
-                # the counts move on by m, the weights decay, the stamp joins at count 0
-                S2 = S2 - 2.0 * m * S1 + m * m * S0
-                S1 = S1 - m * S0
-                Sky = Sky - m * Sy
-                dec = lam ** m
-                lines.append([S0 * dec + 1.0, S1 * dec, S2 * dec, Sy * dec + y, Sky * dec,
-                              lam])
-            S0, S1, S2, Sy, Sky, _ = lines[1]
-            det = S0 * S2 - S1 * S1
-            T = (S0 * Sky - S1 * Sy) / det              # the period: the long line's
+            # the counts move on by m, the weights decay, the stamp joins at count 0: the
+            # long line (its period the clock's) and the counting line (its intercept)
+            S0, S1, S2, Sy, Sky, lam = self._long
+            S2 = S2 - 2.0 * m * S1 + m * m * S0
+            S1 = S1 - m * S0
+            Sky = Sky - m * Sy
+            dec = lam if m == 1.0 else lam ** m
+            S0, S1, S2, Sy, Sky = S0 * dec + 1.0, S1 * dec, S2 * dec, Sy * dec + y, Sky * dec
+            T = (S0 * Sky - S1 * Sy) / (S0 * S2 - S1 * S1)
             if self._age < MEMORY / GROW:
                 # (its memory grows with the fit's age: the first stamps' counts, a lost
                 # sample among them, are not kept for MEMORY s)
                 self._age += m * T
-                lines[1][5] = math.exp(-1.0 / max(2.0, min(MEMORY, GROW * self._age) / T))
-            S0, S1, _, Sy, _, _ = lines[0]
-            a = (Sy - T * S1) / S0
+                lam = math.exp(-1.0 / max(2.0, min(MEMORY, GROW * self._age) / T))
+            C0, C1, Cy, mu = self._sums
+            dec = mu if m == 1.0 else mu ** m
+            C0, C1, Cy = C0 * dec + 1.0, (C1 - m * C0) * dec, Cy * dec + y
+            a = (Cy - T * C1) / C0
             # the times' origin moves to the counting line at this count
-            for line in lines:
-                line[3] -= a * line[0]
-                line[4] -= a * line[1]
-            self._sums, self._long = lines
+            self._long = [S0, S1, S2, Sy - a * S0, Sky - a * S1, lam]
+            self._sums = [C0, C1, Cy - a * C0, mu]
             ref += a
             a = 0.0
         S0, S1, S2, Sy, Sky, _ = self._long
         fit = ref + (Sy * S2 - S1 * Sky) / (S0 * S2 - S1 * S1) + self._pc * T
         if abs(fit - ref - self._pc * T) > 0.5 * T:   # (the lines apart: the counting one)
             fit = ref + self._pc * T
-        if _DEBUG:
-            _LOG.append((s, fit, ref + self._pc * T, T, self._age))
-        # the instant: one interval on, and the lost samples bridged here; drawn towards
-        # the long line over GIVE_BACK intervals (an interval bridged too many is given back)
-        # (an interval bridged at once that the stamps after it did not confirm is given back
-        # over GIVE_BACK intervals)
+        # the instant: one interval on and the lost samples bridged here, less what is
+        # given back (a sample bridged that the stamps after did not confirm, over GIVE_BACK
+        # intervals); drawn towards the long line, slowly (its noise is the instants')
         debt = self._debt - min(bridged, 0.0)
         back = min(debt, 1.0 / GIVE_BACK)
         self._debt = debt - back
