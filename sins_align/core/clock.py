@@ -112,6 +112,9 @@ DECIDE = 2
 LATE = 0.02
 RARE = 1e-4
 NARROW = 0.1
+#: instants whose bridge came late kept for :meth:`SampleClock.lag` (instants computed
+#: ahead of the filter, blocks of thousands of samples)
+LAGS_KEPT = 16384
 #: samples lost are bridged at once beyond this many RMS of the stamps' scatter
 IMMEDIATE = 8.0
 
@@ -227,7 +230,13 @@ class SampleClock:
     def lag(self, x: float) -> int:
         """How many stamps after its place the samples lost before the instant ``x`` (one
         given lately) were bridged (0: at it): the samples between took their place."""
-        return self._lags.pop(x, 0)
+        lags = self._lags
+        while lags:                         # (those before x are not asked for any more)
+            k = next(iter(lags))
+            if k >= x:
+                break
+            del lags[k]
+        return lags.pop(x, 0)
 
     def _on_clock(self, s: float) -> bool:
         """Whether the stamp ``s`` lies on the steady clock so far (a whole number of
@@ -402,9 +411,10 @@ class SampleClock:
         if x <= last:                       # (kept increasing)
             x = last + 0.5 * T
         if lag and bridged > 0.0:
-            self._lags[x] = lag
-            if len(self._lags) > 64:
-                del self._lags[next(iter(self._lags))]
+            lags = self._lags
+            lags[x] = lag
+            if len(lags) > LAGS_KEPT:
+                del lags[next(iter(lags))]
         self._ref = ref
         self._last = x
         self.period = T
