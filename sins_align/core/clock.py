@@ -87,12 +87,12 @@ __all__ = ["SampleClock", "MEMORY", "COUNT_MEMORY", "TOLERANCE", "START", "GIVE_
 
 #: s: the weight of a stamp in the line the instants follow decays by 1/e over this long
 MEMORY = 30.0
-#: s: the same in the line the samples are counted against
+#: s: the same in the counting line's intercept (and the long line's at the fit's start)
 COUNT_MEMORY = 1.0
 #: a stamp within this fraction of the interval of the clock is kept as it is
 TOLERANCE = 1e-4
-#: intervals over which the instants given are drawn to the fit (a count too many, a
-#: reception delay mistaken for a lost sample, is given back so)
+#: intervals over which a sample bridged and not confirmed is given back (and the
+#: instants drawn to the long line while farther than BAND from it)
 GIVE_BACK = 8.0
 #: a lost sample among the first stamps costs this many variances of the best fit's
 LOST_COST = 10.0
@@ -110,8 +110,7 @@ PULL_MAX = 750.0
 BAND = 0.05
 #: stamps given as they are before the clock starts (its first line is through them)
 START = 16
-#: stamps after one that decide the samples lost before it (twice as many while the
-#: stamps scatter by over a quarter of the interval)
+#: stamps after one that decide the samples lost before it (see LATE)
 DECIDE = 2
 #: the fraction of the stamps late by over half an interval (a skewed scatter: reception
 #: delays) beyond which twice DECIDE stamps decide (and while the fit is YOUNG); below
@@ -150,7 +149,7 @@ class SampleClock:
         self._pc = 0.0                       # the last stamp's count past the decided one
         self._var = 0.0                      # the stamps' variance about the counting line
         self._debt = 0.0                     # intervals bridged too many, to give back
-        self.late = 0.0
+        self.late = 0.0                      # (see the class docstring)
         self.given_back = 0
         self.taken_back = 0
         self._lags: dict = {}                # instant -> stamps its bridge came late by
