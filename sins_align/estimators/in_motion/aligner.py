@@ -728,13 +728,15 @@ class MotionAligner(EventSource, AttitudeReadout):
                 # VelocityJitter.at takes out only in part: out of the jitter in full, and
                 # out of the latency's and lever arm's regressors (filter.velocity_model)
                 tones = self._vjitter.tones(t_now)
+                if tones is not None and not (tones[0].found or tones[1].found):
+                    tones = ()                  # (none found: the samples as they are)
                 hf = self._vjitter.at(t_now, T, self.nominal_dt,
-                                      None if tones is None else tones[0])
+                                      tones[0] if tones else None)
                 if tones is None:
                     # no tone can be told yet (under TONE_WINDOW s of samples): what the
                     # line may leave of one counts as the reference's noise
                     young = self._vjitter.spread(t_now)
-                else:
+                elif tones:
                     s_last = np.array([t_now - 0.5 * self.nominal_dt])
                     force = ekf.f_last - tones[0].value(s_last) / (1.0 + ekf.sa)
                     rate = ekf.w_last - tones[1].value(s_last) / (1.0 + ekf.sf)

@@ -71,6 +71,12 @@ TONE_BAND = (2.5, 10.0)
 TONE_WINDOW = 1.0
 #: Hz: the frequency grid of the tone search (the zero-padded spectrum's spacing)
 _TONE_STEP = 0.05
+#: s: the tones' frequencies are searched for at the first update of each such stretch of
+#: data time (on its grid, so that a stream fed sample by sample, with the rewinds of late
+#: measurements, and one fed in blocks search at the same updates); the updates after it
+#: fit their amplitudes and phases only (the search cost some 0.2 ms per update: a third
+#: of the in-motion replay's time at 10 Hz)
+TONE_SEARCH_PERIOD = 1.0
 #: a tone is taken out only when its lobe (+-1 / TONE_WINDOW Hz about its peak, Hann) holds
 #: at least this fraction of the band's power (a tone, not broadband motion or noise:
 #: white noise passes this and the second window's test 0.8 % of the time, per axis)
@@ -174,6 +180,9 @@ class VelocityJitter:
         self._f = np.empty((0, 3))
         self._w = np.empty((0, 3))
         self._new: list = []                     # (t, f, w) blocks not yet joined
+        # (search stretch, update stamp, frequencies (6,) Hz or NaN) of the last search
+        self._search: tuple | None = None
+        self._first: float | None = None         # the first sample's stamp
 
     def add(self, t, f, w=None) -> None:
         """Accepted samples: stamps t (n,) s, increasing; specific force f (n, 3) m/s^2;
@@ -183,6 +192,8 @@ class VelocityJitter:
             return
         f = np.asarray(f, dtype=float).reshape(-1, 3)
         w = np.zeros_like(f) if w is None else np.asarray(w, dtype=float).reshape(-1, 3)
+        if self._first is None:
+            self._first = float(t[0])
         self._new.append((t, f, w))
         if len(self._new) >= 32:            # (questions come after this block's start)
             self._join(float(t[0]))
@@ -214,10 +225,24 @@ class VelocityJitter:
     def tones(self, t: float, window: float = TONE_WINDOW):
         """(specific-force tones, rate tones) (:class:`Tones`, :func:`fit_tones`) of the
         samples within two ``window`` s up to the one stamped ``t``, or None (too few)."""
+        k = int(np.floor(t / TONE_SEARCH_PERIOD))
+        known = self._search
+        freq = known[2] if known is not None and known[0] == k and known[1] <= t else None
+        if self._first is None or t - self._first < 2.0 * window + TONE_SEARCH_PERIOD:
+            # the stream's first seconds, while the second window fills: searched at every
+            # update (what is taken out then weighs the heading hypotheses)
+            freq = known = None
+        if freq is not None and not np.isfinite(freq).any():
+            # (no tone at this stretch's search, which had the samples: nothing to fit)
+            zero = Tones(t, np.zeros(3), np.zeros(3), np.zeros(3))
+            return zero, zero
         tw, ww, fw = self.before(t, 2.0 * window)
-        both = fit_tones(tw, np.hstack([fw, ww]), t, window=window)
+        both = fit_tones(tw, np.hstack([fw, ww]), t, window=window, freq=freq)
         if both is None:
             return None
+        if freq is None and (self._first is not None
+                             and t - self._first >= 2.0 * window + TONE_SEARCH_PERIOD):
+            self._search = (k, t, both.freq)
         return (Tones(t, both.omega[:3], both.a[:3], both.b[:3]),
                 Tones(t, both.omega[3:], both.a[3:], both.b[3:]))
 
@@ -303,6 +328,13 @@ class Tones:
         self.omega = np.asarray(omega, dtype=float)
         self.a = np.asarray(a, dtype=float)
         self.b = np.asarray(b, dtype=float)
+        #: Hz (k,), NaN where none: the frequencies the search found (:func:`fit_tones`)
+        self.freq: np.ndarray | None = None
+
+    @property
+    def found(self) -> bool:
+        """Whether any axis has a tone."""
+        return bool((self.omega > 0.0).any())
 
     def value(self, s) -> np.ndarray:
         """The tones at the instants s (m,): (m, 3)."""
@@ -326,15 +358,15 @@ def _fourier_rows(freq, ts):
 
 @functools.lru_cache(maxsize=16)
 def _window_basis(n: int, span: float, lo: float, hi: float):
-    """For n samples evenly over ``span`` s: (the cubic's basis (n, 4), the projector that
-    takes the cubic out (n, n), the Hann-tapered Fourier rows (2 F, n) of the frequencies
-    (F,) Hz of a :data:`_TONE_STEP` grid over [lo, hi] and one step beyond each end:
-    :func:`_fourier_rows`); read only."""
+    """For n samples evenly over ``span`` s: (the cubic's basis (n, 4), the Hann-tapered
+    Fourier rows (2 F, n) of the frequencies (F,) Hz of a :data:`_TONE_STEP` grid over
+    [lo, hi] and one step beyond each end (:func:`_fourier_rows`) times the projector that
+    takes the cubic out (n, n), the frequencies); read only."""
     u = np.linspace(0.0, 1.0, n)
     poly = np.column_stack([np.ones(n), u, u * u, u * u * u])
     out = np.eye(n) - poly @ np.linalg.pinv(poly)
     freq = np.arange(np.floor(lo / _TONE_STEP) - 1, np.ceil(hi / _TONE_STEP) + 2) * _TONE_STEP
-    res = (poly, out, _fourier_rows(freq, u * span), freq)
+    res = (poly, _fourier_rows(freq, u * span) @ out, freq)
     for a in res:
         a.flags.writeable = False
     return res
@@ -355,15 +387,15 @@ def _peaks(t, x, band):
     tm = t - 0.5 * np.concatenate(([step], dt))                  # the intervals' middles
     span = max(tm[-1] - tm[0], 1e-12)
     if float(np.abs(dt - step).max()) <= 1e-6 * step:
-        poly, out, rows, freq = _window_basis(n, round(span, 9), band[0], band[1])
+        poly, rows_out, freq = _window_basis(n, round(span, 9), band[0], band[1])
     else:                                # (uneven stamps: the same, at these instants)
         u = (tm - tm[0]) / span
         poly = np.column_stack([np.ones(n), u, u * u, u * u * u])
         out = np.eye(n) - poly @ np.linalg.pinv(poly)
         freq = np.arange(np.floor(band[0] / _TONE_STEP) - 1,
                          np.ceil(band[1] / _TONE_STEP) + 2) * _TONE_STEP
-        rows = _fourier_rows(freq, u * span)
-    ri = rows @ (out @ x)
+        rows_out = _fourier_rows(freq, u * span) @ out
+    ri = rows_out @ x
     nf = len(freq)
     spec = ri[:nf] ** 2 + ri[nf:] ** 2                           # (F, k)
     inner = spec[1:-1]
@@ -377,7 +409,7 @@ def _peaks(t, x, band):
     return tm, poly, np.where(ok, freq[1:-1][k], np.nan)
 
 
-def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW):
+def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq=None):
     """The tone within ``band`` Hz of each column of the samples x (m, k) stamped t (m,)
     (each the mean over the interval ending at its stamp: fitted at the intervals'
     middles), as :class:`Tones` about t0 (k entries); None when the samples span less than
@@ -390,7 +422,9 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW):
     last one decides: a vibration not taken out while the heading hypotheses run marred
     the heading for the next 15 s); its amplitude and phase are then fitted to the last
     window by least squares together with the cubic (the vehicle's motion: a 1 Hz turn or
-    roll is left to it), at the last window's peak frequency."""
+    roll is left to it), at the last window's peak frequency. ``freq`` (k,) Hz (NaN: no
+    tone): the frequencies of an earlier search, fitted without searching (the returned
+    Tones' ``freq`` are those of the search either way)."""
     t = np.asarray(t, dtype=float).reshape(-1)
     x = np.asarray(x, dtype=float).reshape(len(t), -1)
     if len(t) < 2 or t[-1] - t[0] < 0.98 * window:
@@ -398,11 +432,20 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW):
     i1 = int(t.searchsorted(t[-1] - window, "left"))
     if len(t) - i1 < _MIN_SAMPLES:
         return None
-    tm, poly, f_now = _peaks(t[i1:], x[i1:], band)
-    if t[-1] - t[0] >= 1.98 * window:
-        i0 = int(t.searchsorted(t[i1] - window, "left"))
-        _, _, f_before = _peaks(t[i0:i1 + 1], x[i0:i1 + 1], band)
-        f_now[~(np.abs(f_now - f_before) <= 2.01 * _TONE_STEP)] = np.nan
+    if freq is None:
+        tm, poly, f_now = _peaks(t[i1:], x[i1:], band)
+        if t[-1] - t[0] >= 1.98 * window and np.isfinite(f_now).any():
+            i0 = int(t.searchsorted(t[i1] - window, "left"))
+            _, _, f_before = _peaks(t[i0:i1 + 1], x[i0:i1 + 1], band)
+            f_now[~(np.abs(f_now - f_before) <= 2.01 * _TONE_STEP)] = np.nan
+    else:
+        f_now = np.array(freq, dtype=float)
+        if not np.isfinite(f_now).any():             # (no tone: nothing to fit)
+            m = x.shape[1]
+            tones = Tones(t0, np.zeros(m), np.zeros(m), np.zeros(m))
+            tones.freq = f_now
+            return tones
+        tm, poly = _window_poly(t[i1:])
     m = x.shape[1]
     omega, a, b = np.zeros(m), np.zeros(m), np.zeros(m)
     for i in np.flatnonzero(np.isfinite(f_now)):
@@ -411,4 +454,20 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW):
         A = np.column_stack([poly, np.cos(ph), np.sin(ph)])
         c, *_ = np.linalg.lstsq(A, x[i1:, i], rcond=None)
         omega[i], a[i], b[i] = w, c[4], c[5]
-    return Tones(t0, omega, a, b)
+    tones = Tones(t0, omega, a, b)
+    tones.freq = f_now
+    return tones
+
+
+def _window_poly(t):
+    """The intervals' middles and the cubic's basis of :func:`_peaks` (without the
+    search)."""
+    n = len(t)
+    dt = np.diff(t)
+    step = float(dt.mean())
+    if float(np.abs(dt - step).max()) > 1e-6 * step:
+        step = float(np.median(dt))
+    tm = t - 0.5 * np.concatenate(([step], dt))
+    span = max(tm[-1] - tm[0], 1e-12)
+    u = (tm - tm[0]) / span
+    return tm, np.column_stack([np.ones(n), u, u * u, u * u * u])
