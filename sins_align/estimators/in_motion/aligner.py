@@ -47,7 +47,7 @@ from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFee
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel, extra_size)
 from sins_align.estimators.in_motion.gaps import bridge_gaps
-from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
+from sins_align.estimators.in_motion.jitter import TONE_WINDOW, JitterMonitor, VelocityJitter
 from sins_align.estimators.in_motion.stillness import WINDOW as STILL_WINDOW
 from sins_align.estimators.in_motion.stillness import (gyrocompass_limit, imu_at_rest,
                                                       reference_still)
@@ -142,7 +142,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._jitter = JitterMonitor()
         self._rest_at: tuple | None = None      # (stamp, IMU at rest there) of _parked
         self._vjitter = VelocityJitter(c.max_measurement_lag + _HISTORY_MARGIN
-                                       + c.velocity_averaging + 1.0)
+                                       + max(c.velocity_averaging, 2.0 * TONE_WINDOW) + 1.0)
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
         self._next_nhc: float | None = None
         self._nis: deque = deque()               # (t, nis per dof, dof, that with R as given)
@@ -721,7 +721,25 @@ class MotionAligner(EventSource, AttitudeReadout):
             # update out of the transition too (it would couple the attitude error into a
             # velocity error that this comparison cannot see)
             T = self.config.velocity_averaging
-            hf = self._vjitter.at(t_now, T, self.nominal_dt) if T > 0.0 else None
+            force = rate = hf = None
+            young = 0.0
+            if T > 0.0:
+                # one tone per axis below ~10 Hz (jitter.fit_tones), which the line of
+                # VelocityJitter.at takes out only in part: out of the jitter in full, and
+                # out of the latency's and lever arm's regressors (filter.velocity_model)
+                tones = self._vjitter.tones(t_now)
+                if tones is not None and not (tones[0].found or tones[1].found):
+                    tones = ()                  # (none found: the samples as they are)
+                hf = self._vjitter.at(t_now, T, self.nominal_dt,
+                                      tones[0] if tones else None)
+                if tones is None:
+                    # no tone can be told yet (under TONE_WINDOW s of samples): what the
+                    # line may leave of one counts as the reference's noise
+                    young = self._vjitter.spread(t_now)
+                elif tones:
+                    s_last = np.array([t_now - 0.5 * self.nominal_dt])
+                    force = ekf.f_last - tones[0].value(s_last) / (1.0 + ekf.sa)
+                    rate = ekf.w_last - tones[1].value(s_last) / (1.0 + ekf.sf)
             if hf is not None:
                 z = z + ekf.C @ hf[0]                   # (K, 3)
                 ekf.exclude_velocity_jitter(hf[0])
@@ -736,8 +754,11 @@ class MotionAligner(EventSource, AttitudeReadout):
                 z = z + (t_now - ts) * acc
             parked = self._parked(t_now, payload)
             s = self.noise_scale = self._noise_scale(t_now)
-            nis, ll = ekf.update_velocity(z, R if s == 1.0 else s * R, self.config.nis_inflate,
-                                          consider_heading=parked)
+            Ru = R if s == 1.0 else s * R
+            if young > 0.0:
+                Ru = Ru + young * np.eye(3)
+            nis, ll = ekf.update_velocity(z, Ru, self.config.nis_inflate,
+                                          consider_heading=parked, force=force, rate=rate)
             self.events["velocity"] += 1
             if parked:
                 self.events["velocity_parked"] += 1

@@ -49,6 +49,9 @@ class MotionConfig:
         filter's transition); the interval between the reference's measurements (GNSS at
         10 Hz: 0.1); 0: compare with the IMU velocity at the sample as it is (the setting
         for a master INS, whose velocity sees the motion that the jitter would take out).
+        > 0 also takes one lasting tone per axis within 2.5-10 Hz, which the line leaves,
+        out of the jitter and out of the latency's and lever arm's regressors
+        (:func:`~sins_align.estimators.in_motion.jitter.fit_tones`).
     max_measurement_lag : s — a measurement stamped up to this long before the newest IMU
         sample is applied at its stamp (the filter rewinds); older ones are refused.
     vehicle : 'ground' | 'air' | 'marine'; 'ground' applies the non-holonomic constraint.
