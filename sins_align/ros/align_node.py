@@ -49,7 +49,7 @@ import time
 
 from sins_align.io.velocity import VELOCITY_TYPES
 from sins_align.ros.params import (ALIGN_NODE_PARAMS, NODE_NAME, PARAMS, check_param,
-                                   config_from_params, estimator_config, make_estimator,
+                                   estimator_config, make_estimator,
                                    param_help, param_spec, velocity_reference)
 from sins_align.ros.runtime import (build_arg_parser, declare_params, node_main, plain,
                                     refuse_start, spin_events)
@@ -258,7 +258,8 @@ def make_node_class():
                 if reason:
                     return SetParametersResult(successful=False, reason=reason)
             try:
-                self._pending = config_from_params(values)
+                # (estimator_config: in motion the latitude may be NaN, from the first fix)
+                self._pending = estimator_config(values)
             except ValueError as e:
                 return SetParametersResult(successful=False, reason=str(e))
             return SetParametersResult(successful=True)
