@@ -46,3 +46,25 @@ def test_the_count_holds_over_five_minutes(model, seed):
     assert abs(c.period / T - 1.0) < 1e-5, c.period / T - 1.0
     assert np.sqrt(np.mean(err ** 2)) < 0.3e-3, np.sqrt(np.mean(err ** 2))
     assert (np.abs(err) < 1.5e-3).mean() >= 0.999, (np.abs(err) < 1.5e-3).mean()
+
+
+@pytest.mark.parametrize("block", [10, 16384])
+def test_stamps_back_on_the_imu_clock_within_a_block(block):
+    """Stamps from the IMU's own clock, one of them received 3 ms late: the fit starts there
+    and ends some hundred stamps later (back on the clock, untouched again). Fed in blocks,
+    the stamps after that end within the block are given as one by one (they crashed:
+    the fit's sums were gone while the block's loop went on); and the same with jittering
+    stamps that turn exact."""
+    rng = np.random.default_rng(0)
+    one_late = 1.7e9 + np.arange(5000) * T
+    one_late[1000] += 3e-3
+    turning = 100.0 + np.arange(8000) * T           # (see the review's note on epoch stamps)
+    turning[:2000] += rng.uniform(-0.4, 0.4, 2000) * T
+    for s in (one_late, turning):
+        c = SampleClock()
+        single = np.array([c.time(float(x)) for x in s])
+        assert not c.jittering                      # (the fit did end)
+        c = SampleClock()
+        x = np.concatenate([c.times(s[b:b + block]) for b in range(0, len(s), block)])
+        assert not c.jittering
+        np.testing.assert_array_equal(x, single)

@@ -163,6 +163,20 @@ class SampleClock:
     def times(self, t) -> np.ndarray:
         """The instants of the accepted stamps ``t`` (n,) (increasing)."""
         t = np.asarray(t, dtype=float)
+        x = self._times(t)
+        if len(x) == len(t):
+            return x
+        # the stamps came back on the IMU's own clock within ``t``: the rest from there
+        parts = [x]
+        while len(x) < len(t):
+            t = t[len(x):]
+            x = self._times(t)
+            parts.append(x)
+        return np.concatenate(parts)
+
+    def _times(self, t: np.ndarray) -> np.ndarray:
+        """The instants of the first stamps of ``t``: all of them, or those up to the one
+        after which the stamps are back on the IMU's own clock (no fit any more)."""
         n = len(t)
         if not n:
             return t
@@ -209,10 +223,14 @@ class SampleClock:
             out[:j] = t[:j]
             for i, s in enumerate(t[j:].tolist()):
                 out[j + i] = self._one(s)
+                if not self.jittering:
+                    return out[:j + i + 1]
             return out
         out = np.empty(n)
         for i, s in enumerate(t.tolist()):
             out[i] = self._one(s)
+            if not self.jittering:
+                return out[:i + 1]
         return out
 
     def time(self, s: float) -> float:
