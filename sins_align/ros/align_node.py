@@ -82,6 +82,8 @@ MOTION_REASON_TEXT = {
                             "before the newest IMU sample (GNSS and IMU clocks apart?)",
     "measurement_invalid": "a measurement with an unusable covariance or value",
     "time_jump": "IMU stamp gap above max_gap: the in-motion alignment starts over",
+    "no_position": "no position yet: the latitude was left out, waiting for the first fix "
+                   "on navsat_topic",
 }
 
 WARN_PERIOD = 5.0   # s (wall) between warnings for one rejection reason
