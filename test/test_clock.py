@@ -46,3 +46,39 @@ def test_the_count_holds_over_five_minutes(model, seed):
     assert abs(c.period / T - 1.0) < 1e-5, c.period / T - 1.0
     assert np.sqrt(np.mean(err ** 2)) < 0.3e-3, np.sqrt(np.mean(err ** 2))
     assert (np.abs(err) < 1.5e-3).mean() >= 0.999, (np.abs(err) < 1.5e-3).mean()
+
+
+@pytest.mark.parametrize("block", [10, 16384])
+def test_stamps_back_on_the_imu_clock_within_a_block(block):
+    """Stamps from the IMU's own clock, one of them received 3 ms late: the fit starts there
+    and ends some hundred stamps later (back on the clock, untouched again). Fed in blocks,
+    the stamps after that end within the block are given as one by one (they crashed:
+    the fit's sums were gone while the block's loop went on); and the same with jittering
+    stamps that turn exact."""
+    rng = np.random.default_rng(0)
+    one_late = 1.7e9 + np.arange(5000) * T
+    one_late[1000] += 3e-3
+    turning = 100.0 + np.arange(8000) * T           # (see the review's note on epoch stamps)
+    turning[:2000] += rng.uniform(-0.4, 0.4, 2000) * T
+    for s in (one_late, turning):
+        c = SampleClock()
+        single = np.array([c.time(float(x)) for x in s])
+        assert not c.jittering                      # (the fit did end)
+        c = SampleClock()
+        x = np.concatenate([c.times(s[b:b + block]) for b in range(0, len(s), block)])
+        assert not c.jittering
+        np.testing.assert_array_equal(x, single)
+
+
+def test_the_period_settles_on_exact_epoch_stamps_after_jitter():
+    """Epoch stamps (1.7e9 s: 0.24 us apart in floats), +-40 % jitter for 20 s, then the
+    IMU's exact stamps: the period settles on the stamps' (within 1e-8 after 280 s). The
+    lines' origin moved by the counting line's value while the origin itself moved by what
+    it rounded to: that difference came back at every stamp and held the period 1.1e-5
+    off for good (the instants then lean on the slow pull, below float resolution there)."""
+    rng = np.random.default_rng(0)
+    s = 1.7e9 + np.arange(30_000) * T
+    s[:2000] += rng.uniform(-0.4, 0.4, 2000) * T
+    c = SampleClock()
+    c.times(s)
+    assert abs(c.period / T - 1.0) < 1e-8, c.period / T - 1.0

@@ -318,6 +318,28 @@ def test_without_a_latitude_the_first_navsat_fix_gives_the_position(probe, tmp_p
     assert "at the position of the first fix on" in node.stderr(), node.output()
 
 
+
+def test_without_a_latitude_the_node_only_parameters_can_still_be_set(probe):
+    """In motion with the latitude left out (NaN until the first fix), a node-only parameter
+    (euler_rate) is still settable at run time and an estimator one is still refused for being
+    in motion (not for the missing latitude: the check builds the in-motion configuration)."""
+    from rclpy.parameter import Parameter
+
+    from sins_align.ros import align_node
+
+    node = align_node.make_node_class()(
+        context=probe.context, namespace=f"/mnl_set_{RUN}",
+        parameter_overrides=[Parameter("velocity_topic", value="gnss/vel"),
+                             Parameter("navsat_topic", value="gnss/fix")])
+    try:
+        res = node.set_parameters([Parameter("euler_rate", value=5.0)])
+        assert res[0].successful, res
+        assert node.get_parameter("euler_rate").value == 5.0
+        res = node.set_parameters([Parameter("max_gap", value=2.0)])
+        assert not res[0].successful and "in-motion alignment" in res[0].reason, res
+    finally:
+        node.destroy_node()
+
 @pytest.mark.parametrize("args, reason", [
     (["-p", "velocity_topic:=v", "-p", "velocity_frame:=nwu"],
      "velocity_frame must be one of enu, ned, got 'nwu'"),

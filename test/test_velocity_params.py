@@ -327,3 +327,14 @@ def test_replay_takes_the_latitude_from_the_navsat_topic(tmp_path, capsys):
     assert out["fix"]["rejected"] == {}, out["fix"]["rejected"]
     rc, _, err = cli(replay, [bag, "--velocity-topic", "/gnss/fix_velocity"], capsys)
     assert rc == 2 and "latitude is required" in err and "--navsat-topic" in err, err
+
+
+def test_every_in_motion_rejection_reason_has_a_warning_text():
+    """align_node's throttled warning names what a rejection means; 'no_position' (the
+    latitude left out, no fix yet) had none: 'rejected 250 sample(s): no_position (?)'."""
+    from sins_align.estimators.in_motion import MOTION_REJECT_REASONS
+    from sins_align.ros.align_node import MOTION_REASON_TEXT, REASON_TEXT
+
+    missing = [r for r in MOTION_REJECT_REASONS
+               if r not in MOTION_REASON_TEXT and r not in REASON_TEXT]
+    assert not missing, missing

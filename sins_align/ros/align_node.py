@@ -49,7 +49,7 @@ import time
 
 from sins_align.io.velocity import VELOCITY_TYPES
 from sins_align.ros.params import (ALIGN_NODE_PARAMS, NODE_NAME, PARAMS, check_param,
-                                   config_from_params, estimator_config, make_estimator,
+                                   estimator_config, make_estimator,
                                    param_help, param_spec, velocity_reference)
 from sins_align.ros.runtime import (build_arg_parser, declare_params, node_main, plain,
                                     refuse_start, spin_events)
@@ -82,6 +82,8 @@ MOTION_REASON_TEXT = {
                             "before the newest IMU sample (GNSS and IMU clocks apart?)",
     "measurement_invalid": "a measurement with an unusable covariance or value",
     "time_jump": "IMU stamp gap above max_gap: the in-motion alignment starts over",
+    "no_position": "no position yet: the latitude was left out, waiting for the first fix "
+                   "on navsat_topic",
 }
 
 WARN_PERIOD = 5.0   # s (wall) between warnings for one rejection reason
@@ -258,7 +260,8 @@ def make_node_class():
                 if reason:
                     return SetParametersResult(successful=False, reason=reason)
             try:
-                self._pending = config_from_params(values)
+                # (estimator_config: in motion the latitude may be NaN, from the first fix)
+                self._pending = estimator_config(values)
             except ValueError as e:
                 return SetParametersResult(successful=False, reason=str(e))
             return SetParametersResult(successful=True)

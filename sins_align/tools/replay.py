@@ -149,7 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", metavar="BAG", help="rosbag2 bag (dir, .mcap, .db3) or ROS 1 .bag")
     p.add_argument("--topic", help="sensor_msgs/Imu topic (default: the only one in the bag)")
     p.add_argument("--latitude", type=float, metavar="DEG", help="latitude, deg (required "
-                   "here or in --params)")
+                   "here or in --params; in motion --navsat-topic can give it)")
     p.add_argument("--height", type=float, metavar="M", help="height above the ellipsoid, m")
     p.add_argument("--model", help="error model: constant, conventional or se3")
     p.add_argument("--grade", help="sensor grade preset: navigation, tactical or consumer")
