@@ -1375,7 +1375,10 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
         f"  samples   {s['samples']}{used}, rejected: {rej}",
     ]
     if ref is not None:
-        refused = sum(ref["refused"].values()) + sum(ref["rejected_by_estimator"].values())
+        # (each topic its own refusals: the NavSatFix ones are the position's)
+        refused = (sum(n for k, n in ref["refused"].items() if not k.startswith("navsat_"))
+                   + sum(n for k, n in ref["rejected_by_estimator"].items()
+                         if k != "position"))
         lines.append(f"  velocity  {ref['topic']} ({ref['type']}, {ref['frame']}): "
                      f"{ref['velocity_received']} messages, {ref['velocity_used']} used, "
                      f"{refused} refused or rejected"
