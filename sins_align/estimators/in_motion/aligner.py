@@ -65,6 +65,7 @@ MOTION_REJECT_REASONS = (
     "specific_force_out_of_range",  # IMU: |f| > specific_force_max
     "rate_too_high",              # IMU: |w| > max_angular_rate
     "measurement_too_late",       # a measurement stamped more than max_measurement_lag back
+    "measurement_duplicate",      # a measurement of the same kind and stamp as one accepted
     "measurement_invalid",        # a measurement with a bad covariance or shape
     "undecodable",                # (align_node) a message whose bytes could not be decoded
 )
@@ -578,6 +579,9 @@ class MotionAligner(EventSource, AttitudeReadout):
         if self.t_last is not None and ts < self.t_last - c.max_measurement_lag:
             self._reject("measurement_too_late", ts)
             return False
+        if self._duplicate(kind, ts):
+            self._reject("measurement_duplicate", ts)
+            return False
         self._seq += 1
         item = (ts, self._seq, kind, payload)
         if self.ekf is None or ts > self.t_last:
@@ -590,6 +594,25 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._rewind(item)
         self._evaluate(self.t_last)
         return True
+
+    def _duplicate(self, kind, ts) -> bool:
+        """Is a measurement of this kind stamped ts already pending or applied within the
+        lag? (A driver or a bag that delivers one message twice: applied twice, it would
+        count as two independent measurements, its noise halved; over car_city with every
+        GNSS velocity given twice, seeds 0-2, 0.2 / 10.2 / 1.5 % of the instants beyond 3
+        sigma against 0 / 6.3 / 0 % once.) Both lists are in stamp order; an older one is
+        refused as too late anyway."""
+        i = bisect.bisect_left(self._pending, (ts,))
+        while i < len(self._pending) and self._pending[i][0] == ts:
+            if self._pending[i][2] == kind:
+                return True
+            i += 1
+        for a in reversed(self._applied):
+            if a[0] < ts:
+                break
+            if a[0] == ts and a[2] == kind:
+                return True
+        return False
 
     def _rewind(self, item):
         ts = item[0]
