@@ -804,7 +804,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             r = (float(nis[self._best]) * d if s == 1.0
                  else float(yw @ np.linalg.solve(M + np.eye(d), yw)))
             self._vel_win.append(t_now, yw, M, d, r)
-            if ekf.K == 1:
+            if ekf.K == 1 and self.config.step_hold:
                 y, S = ekf.last_innovation(0)
                 self._step_check(t_now, ok.tobytes(), y, S, ekf.last_correction(0))
             self._weigh(t_now, nis, ll, d, r / d)
