@@ -270,6 +270,76 @@ def test_estimator_parameters_are_read_only_in_motion(quiet, probe):
     assert res[0].successful, res
 
 
+def test_without_a_latitude_the_first_navsat_fix_gives_the_position(probe, tmp_path):
+    """In motion with a navsat_topic the latitude can be left out: the node starts, refuses
+    IMU samples until the first fix ('no_position', diagnostics say so), then takes them."""
+    ns, name = f"/mnl_{RUN}", f"align_mnl_{RUN}"
+    diags = probe.subscribe(DiagnosticArray, "/diagnostics", 50, maxlen=100)
+    imu = probe.node.create_publisher(Imu, f"{ns}/imu/data_raw", RELIABLE)
+    fix = probe.node.create_publisher(NavSatFix, f"{ns}/gnss/fix", RELIABLE)
+    node = NodeProcess("align_node", [
+        "-r", f"__ns:={ns}", "-r", f"__node:={name}", "-p", "velocity_topic:=gnss/vel",
+        "-p", "navsat_topic:=gnss/fix"], tmp_path, name)
+    status = f"{name}: alignment"
+    try:
+        wait_until(lambda: (imu.get_subscription_count() > 0 and fix.get_subscription_count()
+                            > 0) or not node.alive(), 30.0, "the node to subscribe")
+        assert node.alive(), node.output()
+        t = 1000.0
+
+        def refused():                      # (best effort: keep publishing until counted)
+            nonlocal t
+            for _ in range(5):
+                imu.publish(_imu_msg(t))
+                t += 0.02
+            d = latest_diag(diags, status)
+            return d if d and int(d.get("rejected_no_position", 0)) > 0 else None
+        d = wait_until(refused, 15.0, "IMU samples refused without a position", 0.1)
+        assert d["message"].startswith("waiting for the first NavSatFix"), d
+        time.sleep(1.5)
+        before = latest_diag(diags, status)["rejected_no_position"]
+        f = NavSatFix()
+        f.header.stamp.sec = int(t)
+        f.status.status = 0
+        f.latitude, f.longitude, f.altitude = 34.5, 108.9, 400.0
+        fix.publish(f)
+        wait_until(lambda: (latest_diag(diags, status) or {}).get("position_used") == "1",
+                   10.0, "the fix taken")
+        for _ in range(20):
+            imu.publish(_imu_msg(t))
+            t += 0.02
+        time.sleep(2.5)                     # two diagnostics periods
+        d = latest_diag(diags, status)
+        assert d["rejected_no_position"] == before, (d, before)     # none refused since
+        assert not d["message"].startswith("waiting for the first NavSatFix"), d
+    finally:
+        node.stop()
+    assert "Traceback" not in node.stderr(), node.output()
+    assert "at the position of the first fix on" in node.stderr(), node.output()
+
+
+
+def test_without_a_latitude_the_node_only_parameters_can_still_be_set(probe):
+    """In motion with the latitude left out (NaN until the first fix), a node-only parameter
+    (euler_rate) is still settable at run time and an estimator one is still refused for being
+    in motion (not for the missing latitude: the check builds the in-motion configuration)."""
+    from rclpy.parameter import Parameter
+
+    from sins_align.ros import align_node
+
+    node = align_node.make_node_class()(
+        context=probe.context, namespace=f"/mnl_set_{RUN}",
+        parameter_overrides=[Parameter("velocity_topic", value="gnss/vel"),
+                             Parameter("navsat_topic", value="gnss/fix")])
+    try:
+        res = node.set_parameters([Parameter("euler_rate", value=5.0)])
+        assert res[0].successful, res
+        assert node.get_parameter("euler_rate").value == 5.0
+        res = node.set_parameters([Parameter("max_gap", value=2.0)])
+        assert not res[0].successful and "in-motion alignment" in res[0].reason, res
+    finally:
+        node.destroy_node()
+
 @pytest.mark.parametrize("args, reason", [
     (["-p", "velocity_topic:=v", "-p", "velocity_frame:=nwu"],
      "velocity_frame must be one of enu, ned, got 'nwu'"),

@@ -150,6 +150,20 @@ def test_vector3_stamped_cdr_is_rosbags_serialisation(frame):
         M.vector3_stamped(M.header(1700000000, 123456789, frame), xyz))
 
 
+@pytest.mark.parametrize("frame", ["", "i", "imu", "imu_link", "a_longer_frame_name_x", "ü"])
+def test_vector3_stamped_cdr_many_is_each_message_alone(frame):
+    from sins_align.io.cdr import vector3_stamped_cdr, vector3_stamped_cdr_many
+
+    rng = np.random.default_rng(7)
+    sec = rng.integers(0, 2**31 - 1, 5)
+    nsec = rng.integers(0, 10**9, 5)
+    xyz = rng.normal(size=(5, 3)) * 100.0
+    many = vector3_stamped_cdr_many(sec, nsec, frame, xyz)
+    assert many == [vector3_stamped_cdr(int(a), int(b), frame, v)
+                    for a, b, v in zip(sec, nsec, xyz)]
+    assert vector3_stamped_cdr_many(sec[:0], nsec[:0], frame, xyz[:0]) == []
+
+
 @pytest.mark.parametrize("frame", ["", "imu", "imu_lin"])
 def test_diagnostic_array_cdr_is_rosbags_serialisation(frame):
     from sins_align.io.cdr import diagnostic_array_cdr

@@ -252,3 +252,89 @@ def test_a_relative_velocity_topic_in_the_params_file_is_resolved_at_root(imu_ba
     assert rc == 0, err
     s = json.loads((out / "s.json").read_text())
     assert "velocity_reference" not in s and s["config"]["model"] == "constant"
+
+
+# ---------------------------------------------------------------- latitude from the first fix
+def test_in_motion_with_a_navsat_topic_the_latitude_may_be_left_out():
+    """The issue's 'latitude and height from a NavSatFix topic when present': with both
+    topics the latitude can be omitted (NaN: the first fix gives it); without the NavSatFix
+    topic, or without a velocity topic, it stays required."""
+    values = {k: v for k, v in BASE.items() if k != "latitude"}
+    cfg = P.estimator_config({**values, "velocity_topic": "v", "navsat_topic": "gnss/fix"})
+    assert isinstance(cfg, MotionConfig) and math.isnan(cfg.latitude_deg)
+    for extra in ({"velocity_topic": "v"}, {}):
+        with pytest.raises(ValueError, match="latitude is required"):
+            P.estimator_config({**values, **extra})
+
+
+def test_without_a_position_the_in_motion_estimator_refuses_imu_samples_until_one_comes():
+    """latitude_deg NaN: every IMU sample is refused ('no_position') until add_position;
+    from then on the run is the one configured with that position, bit for bit."""
+    import numpy as np
+
+    from sins_align.sim.trajectory import PRESETS, simulate_trajectory
+
+    traj = PRESETS["car_with_turn"]()
+    r = simulate_trajectory(traj, 100.0, "tactical", seed=3, gnss_sigma=0.05, duration=40.0)
+    site = (traj.lat_deg, traj.lon_deg, traj.height_m)
+
+    def run(latitude, early):
+        al = MotionAligner(MotionConfig(latitude_deg=latitude, longitude_deg=site[1],
+                                        height_m=site[2], specs="tactical",
+                                        velocity_noise=0.05))
+        refused = al.update(r.t[1:early + 1], r.gyro[:early], r.accel[:early])
+        assert al.add_position(r.t[early], *site)
+        for tg, vg in zip(r.gnss_t, r.gnss_v):
+            if tg > r.t[early]:
+                al.add_velocity(tg, vg)
+        al.update(r.t[early + 1:], r.gyro[early:], r.accel[early:])
+        return al, refused
+
+    blind, refused = run(math.nan, 50)
+    assert refused == 0 and blind.rejected["no_position"] == 50, blind.rejected
+    given = MotionAligner(MotionConfig(latitude_deg=site[0], longitude_deg=site[1],
+                                       height_m=site[2], specs="tactical", velocity_noise=0.05))
+    for tg, vg in zip(r.gnss_t, r.gnss_v):
+        if tg > r.t[50]:
+            given.add_velocity(tg, vg)
+    given.update(r.t[51:], r.gyro[50:], r.accel[50:])
+    assert blind.initialized and np.array_equal(blind.dcm, given.dcm)
+    assert np.array_equal(blind.covariance, given.covariance)
+    # a restart keeps the last position (it does not wait for another fix)
+    blind.reset("test")
+    assert blind.position == given.position
+    assert blind.update(r.t[-1] + 0.01, r.gyro[-1], r.accel[-1]) == 1
+
+
+def test_replay_takes_the_latitude_from_the_navsat_topic(tmp_path, capsys):
+    """replay without --latitude but with --navsat-topic: the simulated fixes give the
+    position; the same attitude as with --latitude (the first fix comes before the first
+    IMU sample's; the simulated trajectory's site is the default latitude 34 deg)."""
+    bag = tmp_path / "car"
+    assert simulate.main(["--trajectory", "car_with_turn", "--grade", "tactical", "--duration",
+                          "30", str(bag)]) == 0
+    out = {}
+    for name, flags in (("fix", ["--navsat-topic", "/gnss/fix"]),
+                        ("given", ["--navsat-topic", "/gnss/fix", "--latitude", "34"])):
+        rc, _, err = cli(replay, [bag, "--grade", "tactical", "--velocity-topic",
+                                       "/gnss/fix_velocity", *flags, "--summary-json",
+                                       tmp_path / f"{name}.json"], capsys)
+        assert rc == 0, err
+        out[name] = json.loads((tmp_path / f"{name}.json").read_text())
+        # (the summary's configuration: no latitude given, null)
+        assert out[name]["config"]["latitude_deg"] == (None if name == "fix" else 34.0)
+    assert out["fix"]["final"]["orientation_xyzw"] == out["given"]["final"]["orientation_xyzw"]
+    assert out["fix"]["rejected"] == {}, out["fix"]["rejected"]
+    rc, _, err = cli(replay, [bag, "--velocity-topic", "/gnss/fix_velocity"], capsys)
+    assert rc == 2 and "latitude is required" in err and "--navsat-topic" in err, err
+
+
+def test_every_in_motion_rejection_reason_has_a_warning_text():
+    """align_node's throttled warning names what a rejection means; 'no_position' (the
+    latitude left out, no fix yet) had none: 'rejected 250 sample(s): no_position (?)'."""
+    from sins_align.estimators.in_motion import MOTION_REJECT_REASONS
+    from sins_align.ros.align_node import MOTION_REASON_TEXT, REASON_TEXT
+
+    missing = [r for r in MOTION_REJECT_REASONS
+               if r not in MOTION_REASON_TEXT and r not in REASON_TEXT]
+    assert not missing, missing

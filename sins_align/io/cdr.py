@@ -614,31 +614,68 @@ def vector3_stamped_cdr(sec: int, nanosec: int, frame_id: str, xyz) -> bytes:
     return CDR_LE + head + bytes(-len(head) % 8) + _VEC3.pack(*map(float, xyz))
 
 
+def vector3_stamped_cdr_many(sec, nanosec, frame_id: str, xyz) -> list[bytes]:
+    """:func:`vector3_stamped_cdr` of many messages of one ``frame_id`` (sec, nanosec (n,),
+    xyz (n, 3)), laid out in one numpy record array: the same bytes."""
+    name = frame_id.encode()
+    head = 16 + len(name) + 1                     # CDR header, stamp, length, name, NUL
+    at = head + (-(head - 4) % 8)                 # the vector, 8-aligned from byte 4
+    dt = np.dtype({"names": ["cdr", "sec", "nsec", "len", "name", "xyz"],
+                   "formats": ["V4", "<i4", "<u4", "<u4", f"V{at - 16}", ("<f8", 3)],
+                   "offsets": [0, 4, 8, 12, 16, at], "itemsize": at + 24})
+    n = len(sec)
+    rows = np.zeros(n, dt)
+    rows["cdr"] = np.void(CDR_LE)
+    rows["sec"] = sec
+    rows["nsec"] = nanosec
+    rows["len"] = len(name) + 1
+    rows["name"] = np.void(name + bytes(at - 16 - len(name)))
+    rows["xyz"] = np.asarray(xyz, dtype=float)
+    data = rows.tobytes()
+    size = dt.itemsize
+    return [data[i:i + size] for i in range(0, n * size, size)]
+
+
+#: the CDR bodies (length, bytes, NUL) of strings seen, for :func:`diagnostic_array_cdr`
+#: (the keys come back in every message)
+_CDR_STRINGS: dict[str, bytes] = {}
+_PADS = (b"", b"\0", b"\0\0", b"\0\0\0")
+
+
 def diagnostic_array_cdr(sec: int, nanosec: int, frame_id: str, statuses) -> bytes:
     """A ``diagnostic_msgs/DiagnosticArray`` in ROS 2 CDR (little-endian), as rosbags and
     rclpy serialise it; ``statuses``: (level, name, message, hardware_id, [(key, value)])."""
-    out = bytearray(CDR_LE)
+    parts = [CDR_LE, _STAMP.pack(int(sec), int(nanosec))]
+    n = 8                       # bytes so far after the 4-byte CDR header (the alignment's origin)
+    known = _CDR_STRINGS
+    if len(known) > 4096:
+        known.clear()
 
     def string(x: str):
-        b = x.encode()
-        out.extend(bytes(-(len(out) - 4) % 4))
-        out.extend(_U4.pack(len(b) + 1))
-        out.extend(b)
-        out.append(0)
+        nonlocal n
+        b = known.get(x)
+        if b is None:
+            e = x.encode()
+            b = known[x] = _U4.pack(len(e) + 1) + e + b"\0"
+        pad = -n % 4
+        parts.append(_PADS[pad] + b)
+        n += pad + len(b)
 
-    out.extend(_STAMP.pack(int(sec), int(nanosec)))
     string(frame_id)
-    out.extend(bytes(-(len(out) - 4) % 4))
-    out.extend(_U4.pack(len(statuses)))
+    pad = -n % 4
+    parts.append(_PADS[pad] + _U4.pack(len(statuses)))
+    n += pad + 4
     for level, name, message, hw, values in statuses:
-        out.append(int(level) & 0xFF)
+        parts.append(bytes((int(level) & 0xFF,)))
+        n += 1
         string(name)
         string(message)
         string(hw)
-        out.extend(bytes(-(len(out) - 4) % 4))
-        out.extend(_U4.pack(len(values)))
+        pad = -n % 4
+        parts.append(_PADS[pad] + _U4.pack(len(values)))
+        n += pad + 4
         for k, v in values:
             string(k)
             string(v)
-    return bytes(out)
+    return b"".join(parts)
 

@@ -130,8 +130,10 @@ class BulkMcapStorage:
             lo, hi = int(ts.min()), int(ts.max())
             self.c_start, self.c_end = min(self.c_start, lo), max(self.c_end, hi)
             self.start, self.end = min(self.start, lo), max(self.end, hi)
-            self._put(b"".join([x for i in range(k, j)
-                                for x in (hb[31 * i:31 * i + 31], datas[i])]))
+            parts: list = [None] * (2 * (j - k))
+            parts[0::2] = [hb[i:i + 31] for i in range(31 * k, 31 * j, 31)]
+            parts[1::2] = datas[k:j]
+            self._put(b"".join(parts))
             k = j
             if len(over):
                 self._close_chunk()
@@ -227,8 +229,11 @@ class BulkWriter(Writer):
                 self.write(c, int(ts), d)
             return
         known = {id(c): c.id for c in self.connections}
+        # the objects' ids in C (map), then the few distinct ones looked up
+        objs, inverse = np.unique(np.fromiter(map(id, connections), np.int64, n),
+                                  return_inverse=True)
         try:
-            ids = np.fromiter((known[id(c)] for c in connections), np.uint16, n)
+            ids = np.array([known[o] for o in objs.tolist()], np.uint16)[inverse]
         except KeyError:
             bad = next(c for c in connections if id(c) not in known)
             raise ValueError(f"Tried to write to unknown connection {bad!r}.") from None

@@ -49,7 +49,7 @@ import time
 
 from sins_align.io.velocity import VELOCITY_TYPES
 from sins_align.ros.params import (ALIGN_NODE_PARAMS, NODE_NAME, PARAMS, check_param,
-                                   config_from_params, estimator_config, make_estimator,
+                                   estimator_config, make_estimator,
                                    param_help, param_spec, velocity_reference)
 from sins_align.ros.runtime import (build_arg_parser, declare_params, node_main, plain,
                                     refuse_start, spin_events)
@@ -68,8 +68,11 @@ REASON_TEXT = {
                                    "quasi-static?)",
     "rate_too_high": "|angular_velocity| above max_angular_rate (deg/s instead of rad/s, "
                      "or real motion)",
-    "rates_look_like_deg_per_s": "gyro and accelerometer tilt disagree: angular_velocity "
-                                 "looks like deg/s (REP-145 wants rad/s)",
+    "rates_look_like_deg_per_s": "gyro and accelerometer tilt disagree beyond the gyro "
+                                 "specs: angular_velocity looks like deg/s (REP-145 wants "
+                                 "rad/s), or the gyro is far worse than the configured "
+                                 "grade (a MEMS as 'navigation', the default: set grade, "
+                                 "gyro_bias)",
     "undecodable": "the message bytes are not a valid sensor_msgs/Imu",
 }
 
@@ -81,6 +84,8 @@ MOTION_REASON_TEXT = {
     "measurement_duplicate": "a velocity or attitude with the same stamp as one already "
                              "received (the message delivered twice?)",
     "time_jump": "IMU stamp gap above max_gap: the in-motion alignment starts over",
+    "no_position": "no position yet: the latitude was left out, waiting for the first fix "
+                   "on navsat_topic",
 }
 
 WARN_PERIOD = 5.0   # s (wall) between warnings for one rejection reason
@@ -129,6 +134,9 @@ def make_node_class():
                     self.reference = velocity_reference(values)
                 except ValueError as e:
                     reason = str(e)
+                    if reason == "latitude is required":
+                        reason += (" (give the IMU's geodetic latitude in deg: -p "
+                                   "latitude:=<deg>; in motion a navsat_topic can give it)")
             if reason is not None:
                 refuse_start(self, reason)
             self._pending = None
@@ -178,9 +186,11 @@ def make_node_class():
             c = self.config
             if self.motion:
                 r = self.reference
+                site = (f"latitude {c.latitude_deg:.4f} deg, longitude {c.longitude_deg:.4f}"
+                        f" deg" if not math.isnan(c.latitude_deg) else
+                        f"the position of the first fix on {self.sub_navsat.topic_name}")
                 self.get_logger().info(
-                    f"in-motion alignment at latitude {c.latitude_deg:.4f} deg, longitude "
-                    f"{c.longitude_deg:.4f} deg, vehicle {c.vehicle}; velocity reference "
+                    f"in-motion alignment at {site}, vehicle {c.vehicle}; velocity reference "
                     f"{self.sub_velocity.topic_name} ({VELOCITY_TYPES[r.type]}, {r.frame}), "
                     f"lever arm {', '.join('%g' % x for x in c.lever_arm)} m; position "
                     + (f"from {self.sub_navsat.topic_name}" if r.navsat_topic
@@ -219,12 +229,19 @@ def make_node_class():
             """Declare every parameter (:func:`declare_params`); return the first reason a
             value is bad, or None."""
             _, reason = declare_params(self, ALIGN_NODE_PARAMS)
-            if reason == "latitude is required":
-                reason += " (give the IMU's geodetic latitude in deg: -p latitude:=<deg>)"
             return reason
 
         def _alignment_values(self) -> dict:
-            return {p.name: plain(self.get_parameter(p.name).value) for p in PARAMS}
+            """The estimator's parameters (a required one left out: NaN)."""
+            from rclpy.exceptions import ParameterUninitializedException
+
+            values = {}
+            for p in PARAMS:
+                try:
+                    values[p.name] = plain(self.get_parameter(p.name).value)
+                except ParameterUninitializedException:
+                    values[p.name] = math.nan             # (declared without a value)
+            return values
 
         def _on_set_parameters(self, params) -> SetParametersResult:
             """Validate runtime changes; the new AlignConfig is applied after the set. The
@@ -245,7 +262,8 @@ def make_node_class():
                 if reason:
                     return SetParametersResult(successful=False, reason=reason)
             try:
-                self._pending = config_from_params(values)
+                # (estimator_config: in motion the latitude may be NaN, from the first fix)
+                self._pending = estimator_config(values)
             except ValueError as e:
                 return SetParametersResult(successful=False, reason=str(e))
             return SetParametersResult(successful=True)

@@ -16,6 +16,7 @@ Conventions (README "Frames")
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,7 +32,8 @@ STATE_TEXT = {
     "aligning": "aligning",
     "aligned": "aligned",
     "disturbed": "disturbed: the platform is not quasi-static",
-    "fault": "fault: gyro rates do not match the accelerometer (deg/s sent as rad/s?)",
+    "fault": "fault: gyro rates do not match the accelerometer (deg/s sent as rad/s? or a "
+             "gyro far worse than the configured grade: set grade)",
 }
 
 
@@ -158,7 +160,7 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
     """align_node's diagnostics for an in-motion estimator (the public interface only:
     ``status``, ``aligned``, ``heading_observable``, ``reference_consistent``,
     ``reference_nis``, ``noise_scale``, ``std_enu_deg``, ``rejected``, ``events``,
-    ``bias_gyro``, ``bias_accel``, ``velocity``, ``t_last``) plus what the
+    ``bias_gyro``, ``bias_accel``, ``velocity``, ``t_last``, ``position``) plus what the
     :class:`~sins_align.ros.reference.ReferenceFeed` counted.
 
     ``silent_s``: how long the velocity topic has been silent while IMU data came (None:
@@ -170,6 +172,8 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
     st = str(est.status)
     level = {"waiting": WARN, "disturbed": WARN, "fault": ERROR}.get(st, OK)
     msg = MOTION_STATE_TEXT.get(st, STATE_TEXT.get(st, st))
+    if st == "waiting" and math.isnan(est.position[0]):
+        msg = "waiting for the first NavSatFix (no latitude given): IMU samples refused"
     if st != "waiting" and not est.heading_observable:
         msg += " (heading not observable yet: it needs horizontal acceleration or turns)"
     consistent = bool(est.reference_consistent)

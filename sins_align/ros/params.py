@@ -121,7 +121,8 @@ def velocity_averaging(values: dict[str, Any]) -> float:
 
 
 PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec("latitude", math.nan, "Geodetic latitude of the IMU, deg (required).", -90.0, 90.0),
+    ParamSpec("latitude", math.nan, "Geodetic latitude of the IMU, deg (required; in motion "
+              "with a navsat_topic it may be left out: the first fix gives it).", -90.0, 90.0),
     ParamSpec("height", 0.0, "Height above the WGS-84 ellipsoid, m.", -10000.0, 100000.0),
     ParamSpec("model", "constant", "Error model: constant (paper Model 3), conventional "
               "(Model 1) or se3 (Model 2).", choices=MODELS),
@@ -409,7 +410,11 @@ def checked_values(values: dict[str, Any]) -> dict[str, Any]:
     """
     merged = defaults()
     merged.update(values)
+    # in motion with a NavSatFix topic the latitude may be left out: the first fix gives it
+    from_fix = bool(merged["velocity_topic"] and merged["navsat_topic"])
     for name, value in merged.items():
+        if name == "latitude" and from_fix and isinstance(value, float) and math.isnan(value):
+            continue
         reason = check_param(name, value)
         if reason:
             raise ValueError(reason)

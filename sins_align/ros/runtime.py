@@ -195,10 +195,11 @@ def declare_params(node, specs: tuple[ParamSpec, ...]) -> tuple[dict, str | None
     by :func:`check_param`; integers set on doubles later are taken as doubles
     (:func:`accept_int_as_double`).
 
-    A required parameter (NaN default) is declared without a value: absent, it is
-    "required"; given as NaN, "must be finite". Returns ``(values, None)`` (lists as lists of
-    floats), or ``(values so far, reason)`` for the first value refused (the node is not to
-    start).
+    A required parameter (NaN default) is declared without a value: absent, its value is
+    NaN here and the configuration built from the values says whether it may be (the
+    latitude, in motion with a NavSatFix topic) or is "required"; given as NaN, "must be
+    finite". Returns ``(values, None)`` (lists as lists of floats), or ``(values so far,
+    reason)`` for the first value refused (the node is not to start).
     """
     from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor)
     from rclpy.parameter import Parameter
@@ -219,7 +220,7 @@ def declare_params(node, specs: tuple[ParamSpec, ...]) -> tuple[dict, str | None
 
         def check(v, p=p):
             if p.required and v is None:
-                return f"{p.name} is required"
+                return None                     # absent: NaN (see above)
             if p.required and isinstance(v, float) and math.isnan(v):
                 return f"{p.name} must be finite, got nan"
             return check_param(p.name, plain(v), p.scope)
@@ -227,6 +228,8 @@ def declare_params(node, specs: tuple[ParamSpec, ...]) -> tuple[dict, str | None
         value, reason = declare_typed(node, p.name, default, d, check)
         if reason:
             return values, reason
+        if p.required and value is None:
+            value = math.nan
         values[p.name] = [float(x) for x in value] if isinstance(p.default, list) else value
     node.add_pre_set_parameters_callback(accept_int_as_double(node))
     return values, None

@@ -52,6 +52,7 @@ blocks of runs at a time.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -123,6 +124,7 @@ def _bump(x: np.ndarray):
     return 256.0 * y ** 4, 1024.0 * y ** 3 * (1.0 - 2.0 * x)
 
 
+@functools.cache
 def _peak_second_derivative(kind: str) -> float:
     x = np.linspace(0.0, 1.0, 200001)
     y = x * (1.0 - x)
@@ -131,10 +133,10 @@ def _peak_second_derivative(kind: str) -> float:
     return float(np.max(np.abs(d2)))
 
 
-#: max |S''| of the smoothstep (about 7.513) and max |b''| of the bump (32, at the centre):
-#: a profile ``D S(s / T)`` has peak acceleration ``D max|S''| / T^2``.
-_STEP_D2 = _peak_second_derivative("step")
-_BUMP_D2 = _peak_second_derivative("bump")
+# max |S''| of the smoothstep (about 7.513) and max |b''| of the bump (32, at the centre),
+# ``_peak_second_derivative("step" | "bump")``, computed when first needed (7 ms of every
+# import otherwise, align_node's included): a profile ``D S(s / T)`` has peak acceleration
+# ``D max|S''| / T^2``.
 
 
 @dataclass(frozen=True)
@@ -222,7 +224,8 @@ def shove(onset: float, accel: float = 3.0, duration: float = 0.4,
     jolt = np.zeros(3)
     jolt[_axis(jolt_axis)] = _finite(jolt_deg, "jolt_deg") * _DEG
     return Event("shove", onset, duration, ang_pulse=jolt,
-                 lin_step=_unit(direction, "direction") * accel * duration ** 2 / _STEP_D2)
+                 lin_step=_unit(direction, "direction") * accel * duration ** 2
+                 / _peak_second_derivative("step"))
 
 
 def door_slam(onset: float, angle_deg: float = 0.5, accel: float = 5.0, duration: float = 0.1,
@@ -237,7 +240,7 @@ def door_slam(onset: float, angle_deg: float = 0.5, accel: float = 5.0, duration
     ang[_axis(axis)] = _finite(angle_deg, "angle_deg") * _DEG
     return Event("door_slam", onset, duration, ang_pulse=ang,
                  lin_pulse=_unit(direction, "direction") * _finite(accel, "accel")
-                 * duration ** 2 / _BUMP_D2)
+                 * duration ** 2 / _peak_second_derivative("bump"))
 
 
 def relevel(onset: float, angle_deg: float = 2.0, axis: int = 0,

@@ -102,7 +102,7 @@ from sins_align.io.fastbag import FastBag, open_fast
 from sins_align.io.msgdefs import DEFINITIONS
 from sins_align.io.cdr import (IMU_TYPE, ImuBatch, ImuLayout, decode_imu_array,
                                decode_imu_batch, imu_with_orientations, reader_imu_layout,
-                               diagnostic_array_cdr, vector3_stamped_cdr)
+                               diagnostic_array_cdr, vector3_stamped_cdr_many)
 from sins_align.estimators.quasi_static import AlignConfig
 from sins_align.estimators.session import AlignmentSession
 from sins_align.ros.outputs import (StampClock, bias_estimates, euler_deg, imu_output,
@@ -149,7 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", metavar="BAG", help="rosbag2 bag (dir, .mcap, .db3) or ROS 1 .bag")
     p.add_argument("--topic", help="sensor_msgs/Imu topic (default: the only one in the bag)")
     p.add_argument("--latitude", type=float, metavar="DEG", help="latitude, deg (required "
-                   "here or in --params)")
+                   "here or in --params; in motion --navsat-topic can give it)")
     p.add_argument("--height", type=float, metavar="M", help="height above the ellipsoid, m")
     p.add_argument("--model", help="error model: constant, conventional or se3")
     p.add_argument("--grade", help="sensor grade preset: navigation, tactical or consumer")
@@ -241,7 +241,10 @@ def config_or_error(values: dict[str, Any]):
     topic is set), or a CliError naming the bad parameter."""
     lat = values.get("latitude")
     if lat is None or (isinstance(lat, float) and math.isnan(lat)):
-        raise CliError("latitude is required: pass --latitude DEG or set latitude in --params")
+        if not (values.get("velocity_topic") and values.get("navsat_topic")):
+            raise CliError("latitude is required: pass --latitude DEG or set latitude in "
+                           "--params (in motion, --navsat-topic can give it)")
+        values = {**values, "latitude": math.nan}      # the first fix gives it
     try:
         return estimator_config(values)
     except ValueError as e:
@@ -634,7 +637,9 @@ class ReplaySession:
         frames = batch.frame_id
         ns_l = ns.tolist()
         samples0 = self.samples
-        out: list[tuple[int, int, Any, bytes]] = []        # (sample, order, connection, data)
+        # per topic: (the samples they follow, the topic's rank in the node's order,
+        # connection, their bytes)
+        parts: list[tuple[np.ndarray, int, Any, list]] = []
         # /imu/data: the input's bytes with the orientation written in
         if len(acc_idx):
             C = st.dcm[acc_idx]
@@ -642,25 +647,27 @@ class ReplaySession:
             datas = imu_with_orientations(mb.buf, mb.starts[acc_idx], mb.sizes[acc_idx], vals)
             if self.out_layout is None:
                 self.out_layout = ImuLayout.of(mb.raw(int(acc_idx[0])))
-            msgs = None
-            for k, (j, data) in enumerate(zip(acc_idx.tolist(), datas)):
-                if data is None:            # no CDR layout recognised: built by rosbags
-                    m = self.msgs
-                    if msgs is None:
-                        msgs = list(batch.messages())
+            if None in datas:               # no CDR layout recognised: built by rosbags
+                m = self.msgs
+                msgs = list(batch.messages())
+                for k in [k for k, d in enumerate(datas) if d is None]:
                     q = vals[k]
+                    j = int(acc_idx[k])
                     msg = msgs[j]
                     w, a = msg.angular_velocity, msg.linear_acceleration
-                    data = m.serialize(m.imu(
+                    datas[k] = m.serialize(m.imu(
                         m.header(int(sec[j]), int(nsec[j]), frames[j]), q[:4], q[4:],
                         (w.x, w.y, w.z), msg.angular_velocity_covariance, (a.x, a.y, a.z),
                         msg.linear_acceleration_covariance))
-                out.append((j, 0, self.c_imu, data))
+            parts.append((acc_idx, 0, self.c_imu, datas))
         # the aligned flag, when it changes
-        for j in self.session.flags_to_publish(st.aligned).tolist():
-            value = bool(st.aligned[j])
-            self.aligned_changes.append(((ns_l[j] - self.first_ns) / NS, value))
-            out.append((j, 1, self.c_aligned, BOOL_CDR[value]))
+        flips = self.session.flags_to_publish(st.aligned)
+        if len(flips):
+            for j in flips.tolist():
+                self.aligned_changes.append(((ns_l[j] - self.first_ns) / NS,
+                                             bool(st.aligned[j])))
+            parts.append((flips, 1, self.c_aligned,
+                          [BOOL_CDR[bool(v)] for v in st.aligned[flips]]))
         prev_header = self.last_header
 
         def header_at(j):
@@ -668,39 +675,62 @@ class ReplaySession:
             if i < 0:
                 return prev_header
             return (int(sec[i]), int(nsec[i]), frames[i])
-        # Euler angles at the 10 Hz ticks, once a sample was accepted and time runs
+        # Euler angles at the 10 Hz ticks, once a sample was accepted and time runs: the
+        # header of the last accepted sample (before the block's first: the one before)
         eu = np.flatnonzero(euler_due & st.started)
+        li = last_acc[eu]
+        if prev_header is None:
+            eu, li = eu[li >= 0], li[li >= 0]
         if len(eu):
-            rpy = (rpy_from_dcm(st.dcm[eu]) / DEG).tolist()
-            for j, r in zip(eu.tolist(), rpy):
-                h = header_at(j)
-                if h is not None:
-                    out.append((j, 2, self.c_euler, vector3_stamped_cdr(*h, r)))
+            rpy = rpy_from_dcm(st.dcm[eu]) / DEG
+            own = li >= 0
+            es = np.where(own, sec[np.maximum(li, 0)], prev_header[0] if prev_header else 0)
+            en = np.where(own, nsec[np.maximum(li, 0)], prev_header[1] if prev_header else 0)
+            ef = [frames[i] if i >= 0 else prev_header[2] for i in li.tolist()]
+            if ef.count(ef[0]) == len(ef):
+                datas = vector3_stamped_cdr_many(es, en, ef[0], rpy)
+            else:                           # the frame_id changed within the block
+                datas = [b""] * len(eu)
+                for fr in dict.fromkeys(ef):
+                    sel = np.flatnonzero([x == fr for x in ef])
+                    for k, d in zip(sel.tolist(), vector3_stamped_cdr_many(
+                            es[sel], en[sel], fr, rpy[sel])):
+                        datas[k] = d
+            parts.append((eu, 2, self.c_euler, datas))
         # diagnostics at the 1 Hz ticks, from the estimator's state after their sample
         ri = 0
         resets, reason = self.session.resets, self.session.last_reset_reason
         if restarts:        # the values before the first restart of the block
             resets, reason = restarts[0][1] - 1, self._reset_reason
-        for j in np.flatnonzero(diag_due).tolist():
-            while ri < len(restarts) and restarts[ri][0] <= j:
-                resets, reason = restarts[ri][1], restarts[ri][2]
-                ri += 1
-            h = header_at(j)
-            out.append((j, 3, self.c_diag, self._diagnostics_bytes(
-                st.views[j], ns_l[j], samples0 + j + 1, resets, reason,
-                h[2] if h else "")))
+        dg = np.flatnonzero(diag_due)
+        if len(dg):
+            datas = []
+            for j in dg.tolist():
+                while ri < len(restarts) and restarts[ri][0] <= j:
+                    resets, reason = restarts[ri][1], restarts[ri][2]
+                    ri += 1
+                h = header_at(j)
+                datas.append(self._diagnostics_bytes(
+                    st.views[j], ns_l[j], samples0 + j + 1, resets, reason, h[2] if h else ""))
+            parts.append((dg, 3, self.c_diag, datas))
         self._reset_reason = self.session.last_reset_reason
         # the node's order: by sample, then imu, aligned, euler, diagnostics
-        key = np.fromiter((4 * j + k for j, k, _, _ in out), np.int64, len(out))
-        order = np.argsort(key, kind="stable").tolist()
-        conns = [out[i][2] for i in order]
-        datas = [out[i][3] for i in order]
-        stamps = ns[key[order] // 4]
-        if hasattr(self.writer, "write_many"):
-            self.writer.write_many(conns, stamps, datas)
-        else:
-            for conn, st_ns, data in zip(conns, stamps.tolist(), datas):
-                self.writer.write(conn, st_ns, data)
+        if parts:
+            key = np.concatenate([4 * idx + rank for idx, rank, _, _ in parts])
+            datas = [d for _, _, _, ds in parts for d in ds]
+            cid = np.concatenate([np.full(len(ds), i) for i, (_, _, _, ds) in
+                                  enumerate(parts)])
+            if len(parts) > 1:
+                order = np.argsort(key, kind="stable")
+                key, cid = key[order], cid[order]
+                datas = [datas[i] for i in order.tolist()]
+            conns = [parts[i][2] for i in cid.tolist()]
+            stamps = ns[key // 4]
+            if hasattr(self.writer, "write_many"):
+                self.writer.write_many(conns, stamps, datas)
+            else:
+                for conn, st_ns, data in zip(conns, stamps.tolist(), datas):
+                    self.writer.write(conn, st_ns, data)
         self.samples += n
         self.last_ns = int(ns[-1])
         if len(acc_idx):
@@ -1338,8 +1368,10 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
     stage = "" if s["stage"] is None or ref is not None else f" ({s['stage']} pass)"
     lines = [
         f"replay {s['bag']}  topic {s['topic']}",
-        f"  config    latitude {c['latitude_deg']:.6f} deg, height {c['height_m']:g} m, "
-        f"{estimator}, grade {c['grade']}",
+        (f"  config    latitude {c['latitude_deg']:.6f} deg, height {c['height_m']:g} m, "
+         if c['latitude_deg'] is not None and math.isfinite(c['latitude_deg']) else
+         f"  config    position from {ref['navsat_topic']}, ")
+        + f"{estimator}, grade {c['grade']}",
         f"  samples   {s['samples']}{used}, rejected: {rej}",
     ]
     if ref is not None:

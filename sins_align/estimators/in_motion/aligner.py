@@ -55,7 +55,7 @@ from sins_align.estimators.in_motion.feedback import (FractionalFeedback, LqrFee
 from sins_align.estimators.in_motion.filter import (IBA, IBG, INU, IPHI, InvariantEKF,
                                                     NoiseModel, extra_size)
 from sins_align.estimators.in_motion.gaps import bridge_gaps
-from sins_align.estimators.in_motion.jitter import JitterMonitor, VelocityJitter
+from sins_align.estimators.in_motion.jitter import TONE_WINDOW, JitterMonitor, VelocityJitter
 from sins_align.estimators.in_motion.stillness import WINDOW as STILL_WINDOW
 from sins_align.estimators.in_motion.stillness import (gyrocompass_limit, imu_at_rest,
                                                       reference_still)
@@ -76,6 +76,8 @@ MOTION_REJECT_REASONS = (
     "measurement_duplicate",      # a measurement of the same kind and stamp as one accepted
     "measurement_invalid",        # a measurement with a bad covariance or shape
     "undecodable",                # (align_node) a message whose bytes could not be decoded
+    "no_position",                # IMU: no position yet (latitude_deg NaN: the first
+                                  # add_position gives it)
 )
 
 MOTION_STATES = ("waiting", "aligning", "aligned")
@@ -154,7 +156,9 @@ class MotionAligner(EventSource, AttitudeReadout):
         self.t_first: float | None = None
         self.last_reject: str | None = None
         self.samples_used = 0
-        self.position = (c.latitude_deg * DEG, c.longitude_deg * DEG, c.height_m)
+        if not math.isnan(c.latitude_deg) or not hasattr(self, "position"):
+            # (latitude NaN: no position until add_position; a restart keeps the last one)
+            self.position = (c.latitude_deg * DEG, c.longitude_deg * DEG, c.height_m)
         self._init_buf: deque = deque()          # (t, gyro, accel) before the start
         self._pending: list = []                 # sorted (stamp, seq, kind, payload)
         self._seq = 0
@@ -164,7 +168,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._jitter = JitterMonitor()
         self._rest_at: tuple | None = None      # (stamp, IMU at rest there) of _parked
         self._vjitter = VelocityJitter(c.max_measurement_lag + _HISTORY_MARGIN
-                                       + c.velocity_averaging + 1.0)
+                                       + max(c.velocity_averaging, 2.0 * TONE_WINDOW) + 1.0)
         self._snaps: deque = deque()             # (t, ekf copy, next nhc time)
         self._next_nhc: float | None = None
         self._nis: deque = deque()               # (t, nis per dof, dof, that with R as given)
@@ -329,6 +333,11 @@ class MotionAligner(EventSource, AttitudeReadout):
         f = np.asarray(accel, dtype=float).reshape(-1, 3)
         if not (len(t) == len(w) == len(f)):
             raise ValueError("stamp, gyro and accel must have the same number of samples")
+        if math.isnan(self.position[0]):
+            # no position yet (latitude_deg NaN): Earth rate and gravity are unknown
+            for x in t.tolist():
+                self._reject("no_position", x if math.isfinite(x) else None)
+            return 0
         good, jump = self._check(t, w, f)
         end = len(t) if jump is None else jump
         idx = np.flatnonzero(good[:end])
@@ -769,7 +778,25 @@ class MotionAligner(EventSource, AttitudeReadout):
             # update out of the transition too (it would couple the attitude error into a
             # velocity error that this comparison cannot see)
             T = self.config.velocity_averaging
-            hf = self._vjitter.at(t_now, T, self.nominal_dt) if T > 0.0 else None
+            force = rate = hf = None
+            young = 0.0
+            if T > 0.0:
+                # one tone per axis below ~10 Hz (jitter.fit_tones), which the line of
+                # VelocityJitter.at takes out only in part: out of the jitter in full, and
+                # out of the latency's and lever arm's regressors (filter.velocity_model)
+                tones = self._vjitter.tones(t_now)
+                if tones is not None and not (tones[0].found or tones[1].found):
+                    tones = ()                  # (none found: the samples as they are)
+                hf = self._vjitter.at(t_now, T, self.nominal_dt,
+                                      tones[0] if tones else None)
+                if tones is None:
+                    # no tone can be told yet (under TONE_WINDOW s of samples): what the
+                    # line may leave of one counts as the reference's noise
+                    young = self._vjitter.spread(t_now)
+                elif tones:
+                    s_last = np.array([t_now - 0.5 * self.nominal_dt])
+                    force = ekf.f_last - tones[0].value(s_last) / (1.0 + ekf.sa)
+                    rate = ekf.w_last - tones[1].value(s_last) / (1.0 + ekf.sf)
             if hf is not None:
                 z = z + ekf.C @ hf[0]                   # (K, 3)
                 ekf.exclude_velocity_jitter(hf[0])
@@ -784,13 +811,17 @@ class MotionAligner(EventSource, AttitudeReadout):
                 z = z + (t_now - ts) * acc
             parked = self._parked(t_now, payload)
             s = self.noise_scale = self._noise_scale(t_now)
-            if ekf.K == 1 and self._step_mode[0] is not None and self._held(t_now, z, R, s):
+            Ru = R if s == 1.0 else s * R
+            if young > 0.0:
+                Ru = Ru + young * np.eye(3)
+            if ekf.K == 1 and self._step_mode[0] is not None and \
+                    self._held(t_now, z, R, Ru, force, rate):
                 self.events["velocity_held"] += 1
                 if not self._replaying:
                     self._evaluate(t_now)
                 return
-            nis, ll = ekf.update_velocity(z, R if s == 1.0 else s * R, self.config.nis_inflate,
-                                          consider_heading=parked)
+            nis, ll = ekf.update_velocity(z, Ru, self.config.nis_inflate,
+                                          consider_heading=parked, force=force, rate=rate)
             self.events["velocity"] += 1
             if parked:
                 self.events["velocity_parked"] += 1
@@ -845,7 +876,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._step_mode = (t, t)
         self.events["velocity_step"] += 1
 
-    def _held(self, t, z, R, s) -> bool:
+    def _held(self, t, z, R, Ru, force=None, rate=None) -> bool:
         """While the reference is taken as stepped (:meth:`_step_check`): the velocity
         update at t is held (True) unless the sum of the innovations of the last
         :data:`STEP_WINDOW` s of held updates (at least :data:`STEP_RESUME_UPDATES`), against
@@ -863,14 +894,14 @@ class MotionAligner(EventSource, AttitudeReadout):
         held innovations count in the NIS windows (a reference that contradicts the IMU for
         good is still said to); not in the noise scale's."""
         ekf = self.ekf
-        z_hat, H = ekf.velocity_model()
+        z_hat, H = ekf.velocity_model(force, rate)
         zz = z[0] if z.ndim == 2 else z
         ok = np.isfinite(zz)
         y = (zz - z_hat[0])[ok]
         Hk = H[0][ok]
         HPH = Hk @ ekf.P[0] @ Hk.T
         Rk = R[np.ix_(ok, ok)]
-        S = HPH + s * Rk
+        S = HPH + Ru[np.ix_(ok, ok)]
         key = ok.tobytes()
         self._step_window(t, key, y, S, None)
         d = len(y)

@@ -21,7 +21,9 @@ class MotionConfig:
     Attributes
     ----------
     latitude_deg, longitude_deg : deg; height_m : m — initial position (a NavSatFix given to
-        :meth:`MotionAligner.add_position` replaces it).
+        :meth:`MotionAligner.add_position` replaces it). ``latitude_deg`` NaN: none, the
+        first position given sets it (and longitude and height): IMU samples before it are
+        refused ('no_position').
     specs : SensorSpecs or a grade name ('navigation', 'tactical', 'consumer'): the bias
         priors and noise densities of the filter.
     gyro_scale_std : 1-sigma gyro scale-factor error per axis (fraction, e.g. 0.003 for a
@@ -47,6 +49,9 @@ class MotionConfig:
         filter's transition); the interval between the reference's measurements (GNSS at
         10 Hz: 0.1); 0: compare with the IMU velocity at the sample as it is (the setting
         for a master INS, whose velocity sees the motion that the jitter would take out).
+        > 0 also takes one lasting tone per axis within 2.5-10 Hz, which the line leaves,
+        out of the jitter and out of the latency's and lever arm's regressors
+        (:func:`~sins_align.estimators.in_motion.jitter.fit_tones`).
     max_measurement_lag : s — a measurement stamped up to this long before the newest IMU
         sample is applied at its stamp (the filter rewinds); older ones are refused.
     vehicle : 'ground' | 'air' | 'marine'; 'ground' applies the non-holonomic constraint.
@@ -197,8 +202,10 @@ class MotionConfig:
             raise ValueError(f"step_hold must be a bool, got {self.step_hold!r}")
         if self.nhc_axis not in (0, 1, 2):
             raise ValueError(f"nhc_axis must be 0, 1 or 2, got {self.nhc_axis!r}")
-        if not (-90.0 < self.latitude_deg < 90.0):
-            raise ValueError(f"latitude_deg must be within (-90, 90), got {self.latitude_deg!r}")
+        if not (-90.0 < self.latitude_deg < 90.0 or (isinstance(self.latitude_deg, float)
+                                                     and math.isnan(self.latitude_deg))):
+            raise ValueError(f"latitude_deg must be within (-90, 90) (or NaN: from the first "
+                             f"position), got {self.latitude_deg!r}")
         positive = ("velocity_noise", "nhc_noise", "nhc_period", "init_time",
                     "inconsistent_nis", "inconsistent_memory",
                     "attitude_noise_deg", "nis_inflate", "max_gap", "max_angular_rate",

@@ -804,29 +804,39 @@ class InvariantEKF:
         if self.i_lat is not None:
             self.latency = (self.latency[0] - dx[self.i_lat])[None]
 
-    def _body_rate(self):
+    def _body_rate(self, rate=None):
         """(a, w_nb), each (K, 3), body axes: the navigation frame's rate (Earth and
-        transport) and the body's rate with respect to it, from the last corrected rate."""
+        transport) and the body's rate with respect to it, from the last corrected rate (or
+        the corrected ``rate`` given, (K, 3))."""
         w_ie, w_en = _w_in(self.v, self.lat, self.h)
         a = np.einsum("kji,kj->ki", self.C, w_ie + w_en)
-        return a, self.w_last - a
+        return a, (self.w_last if rate is None else rate) - a
 
-    def velocity_model(self):
+    def velocity_model(self, force=None, rate=None):
         """Predicted antenna velocity (K, 3) ENU and its H (K, 3, n) against the error state.
 
         With the ``latency`` state (a reference stamped ``tau`` s after the instant it
         measured, a driver stamping at reception), the prediction is the velocity ``tau``
         before: ``v - tau a`` with ``a = C f + g`` the acceleration (ENU; the Coriolis and
-        lever-arm terms left out), and ``dz/d tau = -a``."""
-        z_hat, H = self._velocity_model()
+        lever-arm terms left out), and ``dz/d tau = -a``.
+
+        ``force``, ``rate`` (K, 3), body axes, corrected: the specific force of that
+        acceleration and the rate of the antenna's ``w x l`` (prediction and H alike), the
+        vehicle's; default the last sample's. A reference that does not see the IMU's
+        vibration (``MotionConfig.velocity_averaging`` > 0) is compared with the vehicle's
+        motion: a vibrating sample made the latency's and the lever arm's columns of H
+        regressors of the vibration, which the jitter the updates still hold follows (both
+        alias alike at the update rate), and those states and their correlations took it
+        into the attitude (a 5 Hz tone: the attitude beyond 3 sigma 30-50 % of the time)."""
+        z_hat, H = self._velocity_model(rate)
         if self.i_lat is not None:
-            a = np.einsum("kij,kj->ki", self.C, self.f_last)
+            a = np.einsum("kij,kj->ki", self.C, self.f_last if force is None else force)
             a[:, 2] -= normal_gravity(self.lat, self.h)
             z_hat = z_hat - self.latency * a
             H[:, :, self.i_lat] = a[:, :, None]
         return z_hat, H
 
-    def _velocity_model(self):
+    def _velocity_model(self, rate=None):
         C, lever = self.C, self.lever
         K = self.K
         if self.i_lev is None and not lever.any():
@@ -834,7 +844,7 @@ class InvariantEKF:
             H = np.zeros((K, 3, self.n))
             H[:, :, INU] = -C
             return self.v.copy(), H
-        a, w_nb = self._body_rate()
+        a, w_nb = self._body_rate(rate)
         u = _cross(w_nb, lever)
         z_hat = self.v + np.einsum("kij,kj->ki", C, u)
         Hb = np.zeros((K, 3, self.n))
@@ -844,7 +854,8 @@ class InvariantEKF:
         if self.i_lev is not None:
             Hb[:, :, self.i_lev] = -_skew(w_nb)
         if self.i_sf is not None:
-            Hb[:, :, self.i_sf] = -_skew(lever) * self.w_last[:, None, :]
+            Hb[:, :, self.i_sf] = -_skew(lever) * (self.w_last if rate is None
+                                                   else rate)[:, None, :]
         return z_hat, C @ Hb
 
     def add_body_noise(self, var_attitude, var_velocity) -> None:
@@ -899,16 +910,18 @@ class InvariantEKF:
             dx[:, INU] += np.einsum("kij,kj->ki", D, dx[:, IPHI])
             self.dx = dx
 
-    def update_velocity(self, z, R, nis_limit=None, consider_heading=False):
+    def update_velocity(self, z, R, nis_limit=None, consider_heading=False, force=None,
+                        rate=None):
         """Velocity of the antenna, ENU: (3,) for every filter, NaN components not measured,
         R (3, 3); or (K, 3), each filter its own (a component NaN in every row or in none),
         and R (3, 3) or (K, 3, 3). ``consider_heading``: the heading is a consider state of
         this update (:meth:`_apply`; what a standing vehicle whose gyro cannot gyrocompass
         asks for: there the measured rates and forces hold only noise, and a transition built
         on them turns velocity updates into heading information that is not there).
+        ``force``, ``rate``: the vehicle's specific force and rate (:meth:`velocity_model`).
         Returns (NIS per dof, log-likelihood), each (K,)."""
         z = np.asarray(z, dtype=float)
-        z_hat, H = self.velocity_model()
+        z_hat, H = self.velocity_model(force, rate)
         R = np.asarray(R, dtype=float)
         ok = np.isfinite(z) if z.ndim == 1 else np.isfinite(z).all(axis=0)
         if ok.all():

@@ -910,10 +910,12 @@ class Aligner(EventSource, AttitudeReadout):
                 means, held, (wm, fm) = rec.bridge_errors(missing, nom, w, f)
                 err_m, err_h = means, held
                 if x != t:
-                    # (a jittering stamp: the clock bridges a lost sample at the stamp after
-                    # the one that counted it, which took the lost one's place, one interval
-                    # early: the bridge's error over one interval more)
-                    err_m, err_h, _ = rec.bridge_errors(missing + nom, nom, w, f)
+                    # (a jittering stamp: the clock bridges a lost sample at a stamp after
+                    # the one it was lost before, once the stamps after it show it, and the
+                    # samples between took the lost ones' places, early: the bridge's error
+                    # over as many intervals more, one at least)
+                    more = max(1, self._clock.lag(x)) * nom
+                    err_m, err_h, _ = rec.bridge_errors(missing + more, nom, w, f)
                 hole = list(err_h)
                 if means[0] < held[0]:
                     w, hole[0], dR = (wm * missing + w * nom) / dt, err_m[0], None
