@@ -318,7 +318,9 @@ def test_an_antenna_away_from_the_imu_that_nobody_gave_stays_honest(seed):
     assert frac <= 0.02, frac
     # forward, the yaw turns show it (up, a car's small roll and pitch rates hardly do)
     assert abs(al.lever_arm[0] - 1.0) < 0.3, al.lever_arm
-    frac0, _ = _car_city_beyond(seed, lever)    # MotionConfig's default: taken as exact
+    # MotionConfig's default: taken as exact (and every update applied: the hold after a
+    # step in the reference's error catches some of the turns' w x l too, seed 2 0.7 %)
+    frac0, _ = _car_city_beyond(seed, lever, step_hold=False)
     assert frac0 > 0.3, frac0
 
 
@@ -333,7 +335,9 @@ def test_velocity_stamped_late_stays_honest(seed):
     assert frac <= 0.02, frac
     assert abs(al.velocity_latency - 0.1) < 0.02, al.velocity_latency
     assert al.summary()["velocity_latency_s"] == al.velocity_latency
-    frac0, _ = _car_city_beyond(seed, stamp_late=0.1)    # MotionConfig's default: on time
+    # MotionConfig's default: on time (and every update applied: the hold after a step in
+    # the reference's error catches the accelerations' 0.1-0.3 m/s too, seed 0 0 %)
+    frac0, _ = _car_city_beyond(seed, stamp_late=0.1, step_hold=False)
     assert frac0 > 0.3, frac0
 
 

@@ -286,7 +286,10 @@ def test_vibrating_accelerometer_is_as_honest_as_without_vibration(monkeypatch):
                           ("reversed", lambda self, t, T, nominal=None, tone=None:
                            (lambda r: r and (-r[0], r[1]))(at(self, t, T, nominal, tone)))):
         monkeypatch.setattr(VelocityJitter, "at", patched)
-        bad = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION, **twelve) for s in seeds])
+        # (every update applied: the hold after a step in the reference's error catches
+        # some of what the reversed correction does, 1.55 % against 2.44 % clean)
+        bad = _over([_vibrating_uav(s, vibration=ACCEL_VIBRATION, step_hold=False, **twelve)
+                     for s in seeds])
         assert bad > clean + 0.005, (name, bad, clean)
     monkeypatch.undo()
 

@@ -81,6 +81,8 @@ MOTION_REASON_TEXT = {
     "measurement_too_late": "a velocity or attitude stamped more than max_measurement_lag "
                             "before the newest IMU sample (GNSS and IMU clocks apart?)",
     "measurement_invalid": "a measurement with an unusable covariance or value",
+    "measurement_duplicate": "a velocity or attitude with the same stamp as one already "
+                             "received (the message delivered twice?)",
     "time_jump": "IMU stamp gap above max_gap: the in-motion alignment starts over",
     "no_position": "no position yet: the latitude was left out, waiting for the first fix "
                    "on navsat_topic",

@@ -102,6 +102,11 @@ class MotionConfig:
     lqr_time_constant : s — the time constant the LQR weights aim at.
     nis_inflate : a measurement whose normalised innovation per degree of freedom exceeds this
         has its noise inflated until it equals it (large early transients, skids, outliers).
+    step_hold : look for steps in the velocity reference's error (a GNSS velocity biased by a
+        reflection for seconds) in the sum of a second of innovations, and hold the velocity
+        updates after one until the reference agrees with the filter again
+        (:meth:`MotionAligner._step_check`); False applies every update (as before session
+        17; for tests that show what another mechanism does on its own).
     max_gap : s — IMU stamp gaps above this restart the alignment; shorter holes (above 1.5
         nominal intervals) are bridged and grow the covariance (``gaps.py``). Stamps that
         jitter are replaced by the instants of a steady clock fitted to them (``core/clock.py``).
@@ -153,6 +158,7 @@ class MotionConfig:
     attitude_noise_deg: float = 0.1
     mounting_std_deg: float = 1.0
     nis_inflate: float = 5.0
+    step_hold: bool = True
     feedback: str = "full"
     lqr_time_constant: float = 5.0
     feedback_fraction: float = 0.5
@@ -192,6 +198,8 @@ class MotionConfig:
                 and 0.0 < self.feedback_fraction <= 1.0):
             raise ValueError(f"feedback_fraction must be within (0, 1], got "
                              f"{self.feedback_fraction!r}")
+        if not isinstance(self.step_hold, bool):
+            raise ValueError(f"step_hold must be a bool, got {self.step_hold!r}")
         if self.nhc_axis not in (0, 1, 2):
             raise ValueError(f"nhc_axis must be 0, 1 or 2, got {self.nhc_axis!r}")
         if not (-90.0 < self.latitude_deg < 90.0 or (isinstance(self.latitude_deg, float)

@@ -287,6 +287,7 @@ class InvariantEKF:
         self.lon = np.full(K, state.lon)
         self.h = np.full(K, state.h)
         self._innovation = None                 # (y, H P H^T + R) of the last update
+        self._correction = None                 # (K, n): the error estimate the last update made
         P0 = np.asarray(P0, dtype=float)
         self.P = np.broadcast_to(P0, (K,) + P0.shape[-2:]).copy()
         self.n = self.P.shape[-1]
@@ -660,13 +661,16 @@ class InvariantEKF:
         self.P = 0.5 * (P + _mT(P))
         if self.schedule is None:
             if consider_heading:
-                self.feedback(np.einsum("kid,kd->ki", Kg, y))
+                self._correction = np.einsum("kid,kd->ki", Kg, y)
             else:
-                self.feedback((PHT @ Sy[..., None])[..., 0])
+                self._correction = (PHT @ Sy[..., None])[..., 0]
+            self.feedback(self._correction)
         else:
             # the error estimate carried on: the residual about it, then its scheduled part
             # fed back (seed 002's LQR feedback)
-            dx = self.dx + np.einsum("kij,kj->ki", Kg, y - np.einsum("kij,kj->ki", H, self.dx))
+            self._correction = np.einsum("kij,kj->ki", Kg,
+                                         y - np.einsum("kij,kj->ki", H, self.dx))
+            dx = self.dx + self._correction
             u = np.einsum("ij,kj->ki", self.schedule(self.t_since_feedback), dx)
             self.feedback(u)
             self.dx = dx - u
@@ -697,14 +701,24 @@ class InvariantEKF:
         P = IKH @ P @ IKH.T + Kg @ R @ Kg.T
         self.P = (0.5 * (P + P.T))[None]
         if self.schedule is None:
-            self._feedback_one(Kg @ y if consider_heading else PHT @ Sy)
+            c = Kg @ y if consider_heading else PHT @ Sy
+            self._correction = c[None]
+            self._feedback_one(c)
         else:
-            dx = self.dx[0] + Kg @ (y - H @ self.dx[0])
+            c = Kg @ (y - H @ self.dx[0])
+            self._correction = c[None]
+            dx = self.dx[0] + c
             u = self.schedule(self.t_since_feedback) @ dx
             self._feedback_one(u)
             self.dx = (dx - u)[None]
         self.t_since_feedback = 0.0
         return np.array([nis]), np.zeros(1)
+
+    def last_correction(self, i: int) -> np.ndarray:
+        """Filter i's error estimate (n,) made by the last update (what it fed back, or
+        with a feedback schedule what it added to the carried estimate), after any inflation
+        by ``nis_limit``."""
+        return self._correction[i]
 
     def last_innovation(self, i: int):
         """Filter i's residual (d,) and its covariance H P H^T + R (d, d) in the last update,
