@@ -338,3 +338,23 @@ def test_every_in_motion_rejection_reason_has_a_warning_text():
     missing = [r for r in MOTION_REJECT_REASONS
                if r not in MOTION_REASON_TEXT and r not in REASON_TEXT]
     assert not missing, missing
+
+
+def test_a_reference_whose_imu_samples_are_refused_does_not_pile_up():
+    """Velocities that keep coming while every IMU sample is refused for want of a position
+    are kept only as far back as a start could use them (given ahead of any IMU sample,
+    they are all kept: replay-like callers do that)."""
+    import numpy as np
+
+    al = MotionAligner(MotionConfig(latitude_deg=math.nan, specs="tactical"))
+    for k in range(3000):                           # 300 s at 10 Hz
+        t = 100.0 + 0.1 * k
+        assert al.add_velocity(t, [1.0, 0.0, 0.0])
+        al.update(t, np.zeros(3), np.array([0.0, 0.0, 9.8]))
+    c = al.config
+    assert al.rejected["no_position"] == 3000
+    assert al.pending_measurements <= 10 * (c.init_time + c.max_measurement_lag + 1.0) + 1
+    ahead = MotionAligner(MotionConfig(latitude_deg=34.0, specs="tactical"))
+    for k in range(3000):
+        ahead.add_velocity(100.0 + 0.1 * k, [1.0, 0.0, 0.0])
+    assert ahead.pending_measurements == 3000

@@ -160,6 +160,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             # (latitude NaN: no position until add_position; a restart keeps the last one)
             self.position = (c.latitude_deg * DEG, c.longitude_deg * DEG, c.height_m)
         self._init_buf: deque = deque()          # (t, gyro, accel) before the start
+        self._imu_seen: float | None = None      # the newest IMU stamp refused (no position)
         self._pending: list = []                 # sorted (stamp, seq, kind, payload)
         self._seq = 0
         self._applied: deque = deque()           # measurements applied, within the lag
@@ -337,6 +338,9 @@ class MotionAligner(EventSource, AttitudeReadout):
             # no position yet (latitude_deg NaN): Earth rate and gravity are unknown
             for x in t.tolist():
                 self._reject("no_position", x if math.isfinite(x) else None)
+                if math.isfinite(x):
+                    self._imu_seen = x if self._imu_seen is None else max(self._imu_seen, x)
+            self._trim_waiting()
             return 0
         good, jump = self._check(t, w, f)
         end = len(t) if jump is None else jump
@@ -627,6 +631,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         item = (ts, self._seq, kind, payload)
         if self.ekf is None or ts > self.t_last:
             bisect.insort(self._pending, item)
+            if self.ekf is None:
+                self._trim_waiting()
             return True
         # late: go back to a stored state before ts and run the samples again
         if ts <= self.t_start:
@@ -635,6 +641,26 @@ class MotionAligner(EventSource, AttitudeReadout):
         self._rewind(item)
         self._evaluate(self.t_last)
         return True
+
+    def _trim_waiting(self) -> None:
+        """Before the start: the measurements older than any start could use (``init_time``
+        and ``max_measurement_lag`` before the newest IMU sample, taken or refused for want
+        of a position, and a second) are dropped: a reference that keeps coming while the
+        IMU's samples are refused must not pile up (with no IMU sample at all nothing is
+        dropped: a caller may give the measurements ahead of the samples)."""
+        c = self.config
+        p = self._pending
+        t = self.t_last if self.t_last is not None else self._imu_seen
+        if t is None or not p:
+            return                      # (no IMU time yet: a caller may give them ahead)
+        lo = t - c.init_time - c.max_measurement_lag - 1.0
+        if p[0][0] < lo:
+            del p[:bisect.bisect_left(p, (lo,))]
+
+    @property
+    def pending_measurements(self) -> int:
+        """How many measurements wait to be applied (their stamps not reached yet)."""
+        return len(self._pending)
 
     def _duplicate(self, kind, ts) -> bool:
         """Is a measurement of this kind stamped ts already pending or applied within the
