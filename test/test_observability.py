@@ -264,3 +264,18 @@ def test_cli_bag(tmp_path):
     last = segs[-1]["per_state"]
     assert last["ba_x"]["verdict"] == last["ba_y"]["verdict"] == "observable"
     assert last["phi_U"]["verdict"] == "observable"
+    # without --latitude, the first fix on --navsat-topic gives it (as the replay does):
+    # the simulated fixes are at the trajectory's 34 deg; the same verdicts
+    fixed = tmp_path / "fix.json"
+    q = _cli(str(bag), "--navsat-topic", "/gnss/fix", "--velocity-topic",
+             "/gnss/fix_velocity", "--grade", "tactical", "--json", str(fixed))
+    assert q.returncode == 0, q.stderr
+    got = json.loads(fixed.read_text())
+    assert got["source"]["latitude_deg"] == pytest.approx(34.0, abs=1e-6), got["source"]
+
+    def verdicts(res):
+        return [{k: v["verdict"] for k, v in x["per_state"].items()} for x in res["segments"]]
+    assert verdicts(got) == verdicts(json.loads(out.read_text()))
+    q = _cli(str(bag), "--velocity-topic", "/gnss/fix_velocity", "--json",
+             str(tmp_path / "none.json"))
+    assert q.returncode == 2 and "--navsat-topic" in q.stderr, q.stderr

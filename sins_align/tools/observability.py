@@ -7,6 +7,7 @@ Usage::
         [--lever-states] [--json OUT] [--plot OUT.png] [--force] [--quiet]
     python -m sins_align.observability BAG --latitude DEG --velocity-topic TOPIC
         [--topic IMU] [--velocity-type T] [--velocity-frame F] [--navsat-topic T]
+        (--latitude may be left out with --navsat-topic: the first fix gives it)
         [--lever-arm X Y Z] [--report S] ... (the same analysis options)
 
 A scenario is one of seed 001's manoeuvres (:func:`sins_align.analysis.observability.scenario`:
@@ -86,7 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "model)")
     b = p.add_argument_group("bag")
     b.add_argument("--topic", help="sensor_msgs/Imu topic (default: the only one)")
-    b.add_argument("--latitude", type=float, metavar="DEG", help="latitude, deg")
+    b.add_argument("--latitude", type=float, metavar="DEG", help="latitude, deg (or the first "
+                   "fix on --navsat-topic)")
     b.add_argument("--height", type=float, metavar="M", help="height, m")
     b.add_argument("--velocity-topic", metavar="TOPIC", help="velocity reference topic")
     b.add_argument("--velocity-type", help="twist_with_covariance, twist or odometry")
@@ -159,15 +161,19 @@ def bag_pieces(args, window: float, lever_states: bool):
     """The pieces of a bag: its Imu samples, its velocity reference and the in-motion
     estimator's attitude (a replay of the bag). Raises CliError on bad input."""
     from sins_align.io.bagio import open_reader, read_message_chunks
-    from sins_align.io.velocity import Refused, velocity_from_message
+    from sins_align.io.velocity import Refused, from_navsat, velocity_from_message
     from sins_align.tools import replay as rp
     if not Path(args.bag).exists():
         raise CliError(f"bag {args.bag} does not exist")
     if args.velocity_topic is None:
         raise CliError("a bag needs --velocity-topic (the velocity reference)")
-    if args.latitude is None or not math.isfinite(args.latitude):
-        raise CliError("a bag needs --latitude DEG (a finite number)")
-    values: dict[str, Any] = {"latitude": args.latitude, "velocity_topic": args.velocity_topic}
+    if args.latitude is not None and not math.isfinite(args.latitude):
+        raise CliError("--latitude must be a finite number")
+    if args.latitude is None and args.navsat_topic is None:
+        raise CliError("a bag needs --latitude DEG, or --navsat-topic TOPIC to take it from "
+                       "the first fix")
+    values: dict[str, Any] = {"latitude": math.nan if args.latitude is None else args.latitude,
+                              "velocity_topic": args.velocity_topic}
     for flag in ("height", "velocity_type", "velocity_frame", "navsat_topic"):
         v = getattr(args, flag)
         if v is not None:
@@ -231,8 +237,20 @@ def bag_pieces(args, window: float, lever_states: bool):
     # one jumps, which the analysis would take for turns). The Earth's rotation of the
     # navigation frame over the bag is left out.
     C = body_track(t, gyro, dcm_from_rpy(rows[-1, 1:4] * DEG))
-    lat = config.latitude_deg * DEG
-    h = config.height_m
+    lat, h = config.latitude_deg * DEG, config.height_m
+    if math.isnan(lat):                    # (no --latitude: the first fix's, as the replay)
+        fix = None
+        for _, kind, msg in refs:
+            if kind == "navsat":
+                try:
+                    fix = from_navsat(msg, lambda s, ns: s + 1e-9 * ns)
+                    break
+                except Refused:
+                    continue
+        if fix is None:
+            raise CliError(f"no fix on {reference.navsat_topic} in {args.bag} to take the "
+                           f"latitude from (give --latitude)")
+        lat, h = fix.lat_deg * DEG, fix.height_m
     pieces = pieces_from_series(t - t[0], C, accel, gyro, v, lat, h, window,
                                 lever_arm=config.lever_arm, lever_states=lever_states,
                                 deadband=3.0)
@@ -241,7 +259,7 @@ def bag_pieces(args, window: float, lever_states: bool):
     phases = [(f"{e:.0f} s", float(e)) for e in ends]
     return pieces, phases, {"bag": str(args.bag), "topic": topic,
                             "velocity_topic": reference.topic,
-                            "latitude_deg": config.latitude_deg, "duration_s": span}
+                            "latitude_deg": lat / DEG, "duration_s": span}
 
 
 # ----------------------------------------------------------------------------- results
