@@ -159,6 +159,7 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
                        silent_s: float | None) -> tuple[int, str, list, int]:
     """align_node's diagnostics for an in-motion estimator (the public interface only:
     ``status``, ``aligned``, ``heading_observable``, ``reference_consistent``,
+    ``specs_consistent``, ``bias_spec_ratio``,
     ``reference_nis``, ``noise_scale``, ``std_enu_deg``, ``rejected``, ``events``,
     ``bias_gyro``, ``bias_accel``, ``velocity``, ``t_last``, ``position``) plus what the
     :class:`~sins_align.ros.reference.ReferenceFeed` counted.
@@ -182,6 +183,13 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
         msg = (f"velocity reference contradicts the IMU (mean NIS {est.reference_nis:.0f}): "
                f"check velocity_frame (enu/ned), lever_arm, velocity_latency, velocity_noise; "
                f"attitude published as unknown")
+    zg, za = (float(x) for x in est.bias_spec_ratio)
+    if not bool(est.specs_consistent):
+        level = ERROR
+        msg = (f"the IMU's bias estimates reached {max(zg, za):.0f} x the configured bias "
+               f"specs (gyro {zg:.1f}, accelerometer {za:.1f}): the IMU is worse than its "
+               f"grade; attitude published as unknown: set grade (consumer for a MEMS IMU), "
+               f"gyro_bias, accel_bias and restart")
     std = est.std_enu_deg
     bg, ba = bias_estimates(est)
     v = np.asarray(est.velocity, dtype=float)
@@ -193,6 +201,9 @@ def motion_diagnostics(est, input_rate_hz: float | None, rejected_seen: int, res
         ("aligned", str(bool(est.aligned)).lower()),
         ("heading_observable", str(bool(est.heading_observable)).lower()),
         ("reference_consistent", str(consistent).lower()),
+        ("specs_consistent", str(bool(est.specs_consistent)).lower()),
+        ("bias_spec_ratio_gyro", f"{zg:.2f}"),
+        ("bias_spec_ratio_accel", f"{za:.2f}"),
         ("velocity_noise_scale", f"{float(est.noise_scale):.3f}"),
         ("std_east_deg", f"{std[0]:.6f}"),
         ("std_north_deg", f"{std[1]:.6f}"),
