@@ -219,6 +219,9 @@ def test_an_imu_mounted_askew_on_a_car_stays_honest(seed):
     est = np.degrees(rpy_from_dcm(so3_exp(al.nhc_mount)))   # car <- IMU, the inverse of M
     assert abs(est[2] + mount[2]) < 0.6, est
     assert al.summary()["nhc_mount_deg"] is not None
-    # the teeth: the IMU's axes taken as the car's
+    # the teeth: the IMU's axes taken as the car's: far beyond 3 sigma, or (session 17)
+    # caught by its bias estimates going beyond their specs, the attitude then unknown
     al0, z0 = _askew(seed, mount, nhc_mount_std_deg=0.0)
-    assert (z0 > 3.0).any(axis=1).mean() > 0.5, (z0 > 3.0).any(axis=1).mean()
+    over0 = (z0 > 3.0).any(axis=1).mean()
+    assert over0 > 0.5 or (not al0.specs_consistent and over0 > 0.02), \
+        (over0, al0.specs_consistent)
