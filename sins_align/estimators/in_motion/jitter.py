@@ -131,7 +131,7 @@ class JitterMonitor:
         dt = np.diff(np.concatenate(([t[0] if prev is None else prev], t)))
         theta = np.cumsum(w * dt[:, None], axis=0)
         x = (t - t[0]) / max(t[-1] - t[0], 1e-12)
-        basis = np.column_stack([np.ones(n), x, x * x, x * x * x])
+        basis = _cubic(x)
         coef, *_ = np.linalg.lstsq(basis, theta, rcond=None)
         r = theta - basis @ coef
         taper = np.hanning(n + 2)[1:-1]
@@ -228,10 +228,11 @@ class VelocityJitter:
         k = int(np.floor(t / TONE_SEARCH_PERIOD))
         known = self._search
         freq = known[2] if known is not None and known[0] == k and known[1] <= t else None
-        if self._first is None or t - self._first < 2.0 * window + TONE_SEARCH_PERIOD:
-            # the stream's first seconds, while the second window fills: searched at every
-            # update (what is taken out then weighs the heading hypotheses)
-            freq = known = None
+        # the stream's first seconds, while the second window fills: searched at every
+        # update, nothing kept (what is taken out then weighs the heading hypotheses)
+        early = self._first is None or t - self._first < 2.0 * window + TONE_SEARCH_PERIOD
+        if early:
+            freq = None
         if freq is not None and not np.isfinite(freq).any():
             # (no tone at this stretch's search, which had the samples: nothing to fit)
             zero = Tones(t, np.zeros(3), np.zeros(3), np.zeros(3))
@@ -240,8 +241,7 @@ class VelocityJitter:
         both = fit_tones(tw, np.hstack([fw, ww]), t, window=window, freq=freq)
         if both is None:
             return None
-        if freq is None and (self._first is not None
-                             and t - self._first >= 2.0 * window + TONE_SEARCH_PERIOD):
+        if freq is None and not early:
             self._search = (k, t, both.freq)
         return (Tones(t, both.omega[:3], both.a[:3], both.b[:3]),
                 Tones(t, both.omega[3:], both.a[3:], both.b[3:]))
@@ -259,7 +259,7 @@ class VelocityJitter:
             return 0.0
         v = np.cumsum(fw[1:] * np.diff(tw)[:, None], axis=0)
         u = (tw[1:] - tw[1]) / max(tw[-1] - tw[1], 1e-12)
-        poly = np.column_stack([np.ones(n - 1), u, u * u, u * u * u])
+        poly = _cubic(u)
         coef, *_ = np.linalg.lstsq(poly, v, rcond=None)
         return float(np.mean((v - poly @ coef) ** 2, axis=0).max())
 
@@ -323,13 +323,13 @@ class Tones:
     (k,); an axis without a tone has a = b = 0): the tones of a sensor found by
     :func:`fit_tones` about the instant ``t0``."""
 
-    def __init__(self, t0: float, omega, a, b):
+    def __init__(self, t0: float, omega, a, b, freq=None):
         self.t0 = float(t0)
         self.omega = np.asarray(omega, dtype=float)
         self.a = np.asarray(a, dtype=float)
         self.b = np.asarray(b, dtype=float)
         #: Hz (k,), NaN where none: the frequencies the search found (:func:`fit_tones`)
-        self.freq: np.ndarray | None = None
+        self.freq: np.ndarray | None = freq
 
     @property
     def found(self) -> bool:
@@ -363,7 +363,7 @@ def _window_basis(n: int, span: float, lo: float, hi: float):
     [lo, hi] and one step beyond each end (:func:`_fourier_rows`) times the projector that
     takes the cubic out (n, n), the frequencies); read only."""
     u = np.linspace(0.0, 1.0, n)
-    poly = np.column_stack([np.ones(n), u, u * u, u * u * u])
+    poly = _cubic(u)
     out = np.eye(n) - poly @ np.linalg.pinv(poly)
     freq = np.arange(np.floor(lo / _TONE_STEP) - 1, np.ceil(hi / _TONE_STEP) + 2) * _TONE_STEP
     res = (poly, _fourier_rows(freq, u * span) @ out, freq)
@@ -384,13 +384,12 @@ def _peaks(t, x, band):
     n = len(t)
     dt = np.diff(t)
     step = float(np.median(dt))
-    tm = t - 0.5 * np.concatenate(([step], dt))                  # the intervals' middles
-    span = max(tm[-1] - tm[0], 1e-12)
+    tm, span = _middles(t, dt, step)
     if float(np.abs(dt - step).max()) <= 1e-6 * step:
         poly, rows_out, freq = _window_basis(n, round(span, 9), band[0], band[1])
     else:                                # (uneven stamps: the same, at these instants)
         u = (tm - tm[0]) / span
-        poly = np.column_stack([np.ones(n), u, u * u, u * u * u])
+        poly = _cubic(u)
         out = np.eye(n) - poly @ np.linalg.pinv(poly)
         freq = np.arange(np.floor(band[0] / _TONE_STEP) - 1,
                          np.ceil(band[1] / _TONE_STEP) + 2) * _TONE_STEP
@@ -440,11 +439,6 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq
             f_now[~(np.abs(f_now - f_before) <= 2.01 * _TONE_STEP)] = np.nan
     else:
         f_now = np.array(freq, dtype=float)
-        if not np.isfinite(f_now).any():             # (no tone: nothing to fit)
-            m = x.shape[1]
-            tones = Tones(t0, np.zeros(m), np.zeros(m), np.zeros(m))
-            tones.freq = f_now
-            return tones
         tm, poly = _window_poly(t[i1:])
     m = x.shape[1]
     omega, a, b = np.zeros(m), np.zeros(m), np.zeros(m)
@@ -454,20 +448,27 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq
         A = np.column_stack([poly, np.cos(ph), np.sin(ph)])
         c, *_ = np.linalg.lstsq(A, x[i1:, i], rcond=None)
         omega[i], a[i], b[i] = w, c[4], c[5]
-    tones = Tones(t0, omega, a, b)
-    tones.freq = f_now
-    return tones
+    return Tones(t0, omega, a, b, f_now)
 
 
 def _window_poly(t):
     """The intervals' middles and the cubic's basis of :func:`_peaks` (without the
-    search)."""
-    n = len(t)
+    search; the median interval only when the stamps are uneven)."""
     dt = np.diff(t)
     step = float(dt.mean())
     if float(np.abs(dt - step).max()) > 1e-6 * step:
         step = float(np.median(dt))
+    tm, span = _middles(t, dt, step)
+    return tm, _cubic((tm - tm[0]) / span)
+
+
+def _middles(t, dt, step):
+    """The middles of the sample intervals ending at the stamps t (the first one ``step``
+    long) and their span."""
     tm = t - 0.5 * np.concatenate(([step], dt))
-    span = max(tm[-1] - tm[0], 1e-12)
-    u = (tm - tm[0]) / span
-    return tm, np.column_stack([np.ones(n), u, u * u, u * u * u])
+    return tm, max(tm[-1] - tm[0], 1e-12)
+
+
+def _cubic(u):
+    """The basis (n, 4) of a cubic in u (n,)."""
+    return np.column_stack([np.ones(len(u)), u, u * u, u * u * u])
