@@ -876,13 +876,12 @@ class MotionAligner(EventSource, AttitudeReadout):
                 y, S = ekf.last_innovation(0)
                 self._step_check(t_now, ok.tobytes(), y, S, ekf.last_correction(0))
             self._weigh(t_now, nis, ll, d, r / d)
-            self._check_specs(stamp=t_now)
         elif kind == "attitude":
             Cm, R = payload
             nis, ll = ekf.update_attitude(Cm, R, self.config.nis_inflate)
             self.events["attitude"] += 1
             self._weigh(t_now, nis, ll, 3)
-            self._check_specs(stamp=t_now)
+        self._check_specs(t_now)
         if not self._replaying:
             self._evaluate(t_now)
 
@@ -990,7 +989,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             m += 1
         return Y, SS, D, m
 
-    def _check_specs(self, stamp) -> None:
+    def _check_specs(self, t_now) -> None:
         """After an update of the single filter (the bank collapsed): the bias estimates
         against the configured specs. One BIAS_BEYOND_SPEC of its prior's stds or more from
         zero says the IMU is worse than its specs (a MEMS run as 'navigation', the default
@@ -1009,7 +1008,7 @@ class MotionAligner(EventSource, AttitudeReadout):
         if self.specs_consistent and max(zg, za) >= BIAS_BEYOND_SPEC:
             self.specs_consistent = False
             self.events["specs_inconsistent"] += 1
-            self._emit("inconsistent", stamp, float(max(zg, za)))
+            self._emit("inconsistent", t_now, float(max(zg, za)))
 
     def _parked(self, t_now, payload) -> bool:
         """Is the heading a consider state of this velocity update? While the vehicle stands
