@@ -687,15 +687,12 @@ class ReplaySession:
             es = np.where(own, sec[np.maximum(li, 0)], prev_header[0] if prev_header else 0)
             en = np.where(own, nsec[np.maximum(li, 0)], prev_header[1] if prev_header else 0)
             ef = [frames[i] if i >= 0 else prev_header[2] for i in li.tolist()]
-            if ef.count(ef[0]) == len(ef):
-                datas = vector3_stamped_cdr_many(es, en, ef[0], rpy)
-            else:                           # the frame_id changed within the block
-                datas = [b""] * len(eu)
-                for fr in dict.fromkeys(ef):
-                    sel = np.flatnonzero([x == fr for x in ef])
-                    for k, d in zip(sel.tolist(), vector3_stamped_cdr_many(
-                            es[sel], en[sel], fr, rpy[sel])):
-                        datas[k] = d
+            datas = [b""] * len(eu)
+            for fr in dict.fromkeys(ef):        # (one, unless the frame_id changed)
+                sel = np.flatnonzero([x == fr for x in ef])
+                for k, d in zip(sel.tolist(), vector3_stamped_cdr_many(
+                        es[sel], en[sel], fr, rpy[sel])):
+                    datas[k] = d
             parts.append((eu, 2, self.c_euler, datas))
         # diagnostics at the 1 Hz ticks, from the estimator's state after their sample
         ri = 0
