@@ -289,11 +289,12 @@ class SampleClock:
         k = k - k[-1]
         T0 = (e[-1] - e[0]) / -k[0]
         y = e - e[-1]
-        lines = []
-        for mem in (COUNT_MEMORY, COUNT_MEMORY):
-            lam = math.exp(-1.0 / max(2.0, mem / T0))
-            w = lam ** -k
-            lines.append([w.sum(), w @ k, w @ (k * k), w @ y, w @ (k * y), lam])
+        # the counting line and the long one start alike, over COUNT_MEMORY s (the long
+        # line's memory then grows with the fit's age: _join)
+        lam = math.exp(-1.0 / max(2.0, COUNT_MEMORY / T0))
+        w = lam ** -k
+        sums = [w.sum(), w @ k, w @ (k * k), w @ y, w @ (k * y), lam]
+        lines = [sums, list(sums)]
         S0, S1, S2, Sy, Sky, _ = lines[1]
         det = S0 * S2 - S1 * S1
         self.period = (S0 * Sky - S1 * Sy) / det
