@@ -946,6 +946,7 @@ class ReplaySession:
             "limit_std_enu_deg": s.get("limit_std_enu_deg"),
             "fine_velocity_noise_mps": s.get("fine_velocity_noise_mps"),
             "nis": s.get("nis"),
+            "gyro_noise_ratio": s.get("gyro_noise_ratio"),
         }
         if self._has_biases:
             bg, ba = bias_estimates(al)
