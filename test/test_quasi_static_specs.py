@@ -12,6 +12,7 @@ NOISE_BEYOND_SPEC (50) times the configured density the attitude is published as
 """
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -126,3 +127,25 @@ def test_the_block_path_publishes_what_the_sample_path_publishes():
     assert tripped.sum() > 1000 and not tripped[:5900].any()
     np.testing.assert_allclose(cov, P, rtol=1e-8, atol=1e-18)
     assert np.array_equal(np.concatenate([p.aligned for p in parts]), flags)
+
+
+def test_replay_says_it_in_its_summary(tmp_path, capsys):
+    """replay --grade navigation on a bag of a tactical IMU: status fault, the ratio, the
+    attitude as unknown (std 180 deg) in the summary; the same bag run as tactical does not
+    trip."""
+    from sins_align.tools import replay, simulate
+
+    bag = tmp_path / "tactical"
+    assert simulate.main(["--latitude", "34", "--grade", "tactical", "--duration", "75",
+                          "--rpy", "1", "-2", "40", "--seed", "3", str(bag)]) == 0
+    out = {}
+    for grade in ("navigation", "tactical"):
+        js = tmp_path / f"{grade}.json"
+        assert replay.main([str(bag), "--latitude", "34", "--grade", grade, "--quiet",
+                            "--summary-json", str(js)]) == 0
+        out[grade] = json.loads(js.read_text())
+    bad, good = out["navigation"], out["tactical"]
+    assert bad["status"] == "fault" and bad["gyro_noise_ratio"] > 50.0, bad["gyro_noise_ratio"]
+    np.testing.assert_allclose(bad["final"]["std_enu_deg"], [180.0] * 3)
+    assert not any(c["aligned"] for c in bad["aligned_changes"])
+    assert good["status"] != "fault" and 0.7 < good["gyro_noise_ratio"] < 2.0

@@ -150,6 +150,8 @@ class StateView:
     time_to_aligned: float | None
     events: dict
     nominal_dt: float | None
+    gyro_noise_ratio: float | None = None
+    specs_consistent: bool = True
 
 
 class Aligner(EventSource, AttitudeReadout):
@@ -450,7 +452,8 @@ class Aligner(EventSource, AttitudeReadout):
             limit_std_deg=self.limit_std_deg, samples_used=self.samples_used,
             rejected=dict(self.rejected), last_reject=self.last_reject, nis=self.nis,
             time_to_aligned=self.time_to_aligned, events=dict(self.events),
-            nominal_dt=self.nominal_dt)
+            nominal_dt=self.nominal_dt, gyro_noise_ratio=self.gyro_noise_ratio,
+            specs_consistent=self.specs_consistent)
 
     # ------------------------------------------------------------------ input
     def update(self, stamp, gyro, accel) -> int:

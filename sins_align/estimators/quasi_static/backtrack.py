@@ -333,8 +333,12 @@ class GyroNoiseFit:
 #: How far apart (the density's square root, either way) the top two octaves may stand for
 #: the top's level to count as the gyro's noise floor (:attr:`GyroNoiseFit.flat`).
 FLAT_RATIO = 1.5
-#: Samples per periodogram of :func:`band_noise_density`.
+#: Samples per periodogram of :func:`band_noise_density` (a Hann window this long keeps a
+#: ship's sway below a navigation gyro's noise at 0.2 of the sample rate; 64 does not), and
+#: the whole segments it needs (fewer: a median of a few hundred ordinates, 1 % of samples
+#: lost at random leave ~2 in 60 s of the real log, and its octaves then read alike by chance)
 SEGMENT = 256
+MIN_SEGMENTS = 8
 
 
 def measure_gyro_noise(dt: np.ndarray, w: np.ndarray,
@@ -355,7 +359,8 @@ def band_noise_density(dt: np.ndarray, x: np.ndarray, ok: np.ndarray, lo: float,
     of a large slow motion stays within a few bins), over the bins in the band and the three
     axes, divided by ln 2 (a white noise's periodogram ordinate is exponential). A median:
     a few tones in the band move it little. None when no segment is whole (no hole, no
-    sample put in, intervals within 15 % of the median) or no bin is in the band."""
+    sample put in, intervals within 15 % of the median) or fewer than MIN_SEGMENTS, or no
+    bin is in the band."""
     h = median(dt)
     good = ok & (np.abs(dt - h) <= 0.15 * h)
     starts, k = [], 0
@@ -366,7 +371,7 @@ def band_noise_density(dt: np.ndarray, x: np.ndarray, ok: np.ndarray, lo: float,
         k = b + 1
     f = np.fft.rfftfreq(SEGMENT, h)
     band = (f >= lo) & (f <= hi)
-    if not starts or not band.any():
+    if len(starts) < MIN_SEGMENTS or not band.any():
         return None
     seg = x[np.asarray(starts)[:, None] + np.arange(SEGMENT)]        # (S, SEGMENT, 3)
     tt = np.arange(SEGMENT) - 0.5 * (SEGMENT - 1)
