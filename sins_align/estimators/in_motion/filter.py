@@ -93,7 +93,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sins_align.core.earth import OMEGA_IE, normal_gravity, radii
+from sins_align.core.earth import (GRAVITY_EQUATOR, GRAVITY_PER_METRE, OMEGA_IE, SOMIGLIANA_K,
+                                   WGS84_A, WGS84_E2, normal_gravity, radii)
 from sins_align.core.rotation import skew, so3_exp, so3_exp_entries, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
@@ -828,6 +829,8 @@ class InvariantEKF:
         regressors of the vibration, which the jitter the updates still hold follows (both
         alias alike at the update rate), and those states and their correlations took it
         into the attitude (a 5 Hz tone: the attitude beyond 3 sigma 30-50 % of the time)."""
+        if self.K == 1:
+            return self._velocity_model_one(force, rate)
         z_hat, H = self._velocity_model(rate)
         if self.i_lat is not None:
             a = np.einsum("kij,kj->ki", self.C, self.f_last if force is None else force)
@@ -835,6 +838,70 @@ class InvariantEKF:
             z_hat = z_hat - self.latency * a
             H[:, :, self.i_lat] = a[:, :, None]
         return z_hat, H
+
+    def _velocity_model_one(self, force=None, rate=None):
+        """:meth:`velocity_model` of a bank of one filter: the same arithmetic on Python
+        floats (the Earth's and transport rate, the cross products, the latency's
+        acceleration) and 2-D arrays, the products of matrices numpy's as in the bank's
+        path (BLAS rounds them its own way); the equality test compares the two."""
+        C = self.C[0]
+        c0, c1, c2, c3, c4, c5, c6, c7, c8 = C.ravel().tolist()
+        v0, v1, v2 = self.v[0].tolist()
+        lever = self.lever[0]
+        lat = h = None
+        if self.i_lev is None and not lever.any():
+            H = np.zeros((3, self.n))
+            H[:, INU] = -C
+            z0, z1, z2 = v0, v1, v2
+        else:
+            # _body_rate: C^T (w_ie + w_en) and the body's rate against the frame
+            lat, h = float(self.lat[0]), float(self.h[0])
+            sl, cl = math.sin(lat), math.cos(lat)
+            d = 1.0 - WGS84_E2 * (sl * sl)
+            rn = WGS84_A / math.sqrt(d)
+            rm = rn * (1.0 - WGS84_E2) / d
+            ve = v0 / (rn + h)
+            w0 = -v1 / (rm + h)
+            w1 = OMEGA_IE * cl + ve
+            w2 = OMEGA_IE * sl + ve * sl / cl
+            a0 = c0 * w0 + c3 * w1 + c6 * w2
+            a1 = c1 * w0 + c4 * w1 + c7 * w2
+            a2 = c2 * w0 + c5 * w1 + c8 * w2
+            r = (self.w_last if rate is None else rate)[0].tolist()
+            n0, n1, n2 = r[0] - a0, r[1] - a1, r[2] - a2
+            l0, l1, l2 = lever.tolist()
+            u0, u1, u2 = n1 * l2 - n2 * l1, n2 * l0 - n0 * l2, n0 * l1 - n1 * l0
+            # (the order of the terms is einsum's over a contiguous axis of 3)
+            z0 = v0 + ((c0 * u0 + c2 * u2) + c1 * u1)
+            z1 = v1 + ((c3 * u0 + c5 * u2) + c4 * u1)
+            z2 = v2 + ((c6 * u0 + c8 * u2) + c7 * u1)
+            Sl = np.array([[0.0, -l2, l1], [l2, 0.0, -l0], [-l1, l0, 0.0]])
+            Hb = np.zeros((3, self.n))
+            Hb[:, IPHI] = (np.array([[0.0, -u2, u1], [u2, 0.0, -u0], [-u1, u0, 0.0]])
+                           - Sl @ np.array([[0.0, -a2, a1], [a2, 0.0, -a0], [-a1, a0, 0.0]]))
+            Hb[:, INU] = -_I3
+            Hb[:, IBG] = -Sl
+            if self.i_lev is not None:
+                Hb[:, self.i_lev] = [[0.0, n2, -n1], [-n2, 0.0, n0], [n1, -n0, 0.0]]
+            if self.i_sf is not None:
+                Hb[:, self.i_sf] = -Sl * r
+            H = C @ Hb
+        if self.i_lat is not None:
+            # velocity_model's latency: the acceleration C f + g
+            f0, f1, f2 = (self.f_last if force is None else force)[0].tolist()
+            if lat is None:
+                lat, h = float(self.lat[0]), float(self.h[0])
+                sl = math.sin(lat)
+            s2 = sl * sl
+            g = (GRAVITY_EQUATOR * (1.0 + SOMIGLIANA_K * s2) / math.sqrt(1.0 - WGS84_E2 * s2)
+                 - GRAVITY_PER_METRE * h)
+            e0 = (c0 * f0 + c2 * f2) + c1 * f1
+            e1 = (c3 * f0 + c5 * f2) + c4 * f1
+            e2 = ((c6 * f0 + c8 * f2) + c7 * f1) - g
+            tau = float(self.latency[0, 0])
+            z0, z1, z2 = z0 - tau * e0, z1 - tau * e1, z2 - tau * e2
+            H[:, self.i_lat] = [[e0], [e1], [e2]]
+        return np.array([[z0, z1, z2]]), H[None]
 
     def _velocity_model(self, rate=None):
         C, lever = self.C, self.lever
