@@ -49,6 +49,7 @@ stream fed in blocks give the same figures at every sample.
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 
@@ -180,7 +181,8 @@ class VelocityJitter:
         self._f = np.empty((0, 3))
         self._w = np.empty((0, 3))
         self._new: list = []                     # (t, f, w) blocks not yet joined
-        # (search stretch, update stamp, frequencies (6,) Hz or NaN) of the last search
+        # (search stretch, update stamp, frequencies (6,) Hz or NaN, whether any is a
+        # number) of the last search
         self._search: tuple | None = None
         self._first: float | None = None         # the first sample's stamp
 
@@ -225,7 +227,7 @@ class VelocityJitter:
     def tones(self, t: float, window: float = TONE_WINDOW):
         """(specific-force tones, rate tones) (:class:`Tones`, :func:`fit_tones`) of the
         samples within two ``window`` s up to the one stamped ``t``, or None (too few)."""
-        k = int(np.floor(t / TONE_SEARCH_PERIOD))
+        k = math.floor(t / TONE_SEARCH_PERIOD)
         known = self._search
         freq = known[2] if known is not None and known[0] == k and known[1] <= t else None
         # the stream's first seconds, while the second window fills: searched at every
@@ -233,16 +235,16 @@ class VelocityJitter:
         early = self._first is None or t - self._first < 2.0 * window + TONE_SEARCH_PERIOD
         if early:
             freq = None
-        if freq is not None and not np.isfinite(freq).any():
+        if freq is not None and not known[3]:
             # (no tone at this stretch's search, which had the samples: nothing to fit)
-            zero = Tones(t, np.zeros(3), np.zeros(3), np.zeros(3))
+            zero = Tones(t, np.zeros(3), np.zeros(3), np.zeros(3), found=False)
             return zero, zero
         tw, ww, fw = self.before(t, 2.0 * window)
         both = fit_tones(tw, np.hstack([fw, ww]), t, window=window, freq=freq)
         if both is None:
             return None
         if freq is None and not early:
-            self._search = (k, t, both.freq)
+            self._search = (k, t, both.freq, bool(np.isfinite(both.freq).any()))
         return (Tones(t, both.omega[:3], both.a[:3], both.b[:3]),
                 Tones(t, both.omega[3:], both.a[3:], both.b[3:]))
 
@@ -323,18 +325,21 @@ class Tones:
     (k,); an axis without a tone has a = b = 0): the tones of a sensor found by
     :func:`fit_tones` about the instant ``t0``."""
 
-    def __init__(self, t0: float, omega, a, b, freq=None):
+    def __init__(self, t0: float, omega, a, b, freq=None, found=None):
         self.t0 = float(t0)
         self.omega = np.asarray(omega, dtype=float)
         self.a = np.asarray(a, dtype=float)
         self.b = np.asarray(b, dtype=float)
         #: Hz (k,), NaN where none: the frequencies the search found (:func:`fit_tones`)
         self.freq: np.ndarray | None = freq
+        self._found = found                     # (None: not asked yet)
 
     @property
     def found(self) -> bool:
         """Whether any axis has a tone."""
-        return bool((self.omega > 0.0).any())
+        if self._found is None:
+            self._found = bool((self.omega > 0.0).any())
+        return self._found
 
     def value(self, s) -> np.ndarray:
         """The tones at the instants s (m,): (m, 3)."""
