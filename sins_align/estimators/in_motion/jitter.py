@@ -185,6 +185,7 @@ class VelocityJitter:
         # number) of the last search
         self._search: tuple | None = None
         self._first: float | None = None         # the first sample's stamp
+        self._peaks_kept: dict = {}              # fit_tones' searches of the last windows
 
     def add(self, t, f, w=None) -> None:
         """Accepted samples: stamps t (n,) s, increasing; specific force f (n, 3) m/s^2;
@@ -240,7 +241,8 @@ class VelocityJitter:
             zero = Tones(t, np.zeros(3), np.zeros(3), np.zeros(3), found=False)
             return zero, zero
         tw, ww, fw = self.before(t, 2.0 * window)
-        both = fit_tones(tw, np.hstack([fw, ww]), t, window=window, freq=freq)
+        both = fit_tones(tw, np.hstack([fw, ww]), t, window=window, freq=freq,
+                         kept=self._peaks_kept)
         if both is None:
             return None
         if freq is None and not early:
@@ -377,6 +379,26 @@ def _window_basis(n: int, span: float, lo: float, hi: float):
     return res
 
 
+#: windows whose search (_peaks) a VelocityJitter keeps: one search's window is, sample for
+#: sample, the next search's window before (a second later)
+_PEAKS_KEPT = 4
+
+
+def _peaks_of(t, x, band, kept):
+    """:func:`_peaks` (its frequencies a new array); with ``kept`` (a dict), a window
+    searched before is taken again when its stamps and samples are the same to the bit."""
+    if kept is None:
+        return _peaks(t, x, band)
+    key = (t.tobytes(), x.tobytes(), band)
+    out = kept.get(key)
+    if out is None:
+        out = _peaks(t, x, band)
+        if len(kept) >= _PEAKS_KEPT:
+            del kept[next(iter(kept))]
+        kept[key] = out
+    return out[0], out[1], out[2].copy()
+
+
 def _peaks(t, x, band):
     """Per column of the samples x (m, k) stamped t: (the middles of the sample intervals
     (m,), the cubic in time's basis (m, 4), the tone frequency (k,) Hz or NaN).
@@ -413,7 +435,8 @@ def _peaks(t, x, band):
     return tm, poly, np.where(ok, freq[1:-1][k], np.nan)
 
 
-def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq=None):
+def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq=None,
+              kept: dict | None = None):
     """The tone within ``band`` Hz of each column of the samples x (m, k) stamped t (m,)
     (each the mean over the interval ending at its stamp: fitted at the intervals'
     middles), as :class:`Tones` about t0 (k entries); None when the samples span less than
@@ -428,7 +451,9 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq
     window by least squares together with the cubic (the vehicle's motion: a 1 Hz turn or
     roll is left to it), at the last window's peak frequency. ``freq`` (k,) Hz (NaN: no
     tone): the frequencies of an earlier search, fitted without searching (the returned
-    Tones' ``freq`` are those of the search either way)."""
+    Tones' ``freq`` are those of the search either way). ``kept``: a dict in which the
+    searches of the last few windows are kept for the next calls (a window searched
+    again, the same to the bit, is not searched anew)."""
     t = np.asarray(t, dtype=float).reshape(-1)
     x = np.asarray(x, dtype=float).reshape(len(t), -1)
     if len(t) < 2 or t[-1] - t[0] < 0.98 * window:
@@ -437,10 +462,10 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq
     if len(t) - i1 < _MIN_SAMPLES:
         return None
     if freq is None:
-        tm, poly, f_now = _peaks(t[i1:], x[i1:], band)
+        tm, poly, f_now = _peaks_of(t[i1:], x[i1:], band, kept)
         if t[-1] - t[0] >= 1.98 * window and np.isfinite(f_now).any():
             i0 = int(t.searchsorted(t[i1] - window, "left"))
-            _, _, f_before = _peaks(t[i0:i1 + 1], x[i0:i1 + 1], band)
+            _, _, f_before = _peaks_of(t[i0:i1 + 1], x[i0:i1 + 1], band, kept)
             f_now[~(np.abs(f_now - f_before) <= 2.01 * _TONE_STEP)] = np.nan
     else:
         f_now = np.array(freq, dtype=float)
