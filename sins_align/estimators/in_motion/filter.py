@@ -1013,6 +1013,9 @@ class InvariantEKF:
         ``slip_updates`` (how many updates it lasts), so that the updates of one turn together
         claim no more than one. Each filter of the bank takes its own speed and rate.
         ``consider_heading``: as :meth:`update_velocity`'s (a parked vehicle)."""
+        if self.K == 1:
+            return self._lateral_one(axis, sigma, nis_limit, slip, slip_updates,
+                                     consider_heading)
         # the vehicle's side: the IMU's ``axis`` (u None), or the unit vectors u (K, 3) in
         # IMU axes of the nhc_mount states
         u = None if self.i_nhm is None else self.nhc_mount[:, :, axis]
@@ -1058,6 +1061,81 @@ class InvariantEKF:
             # component changes by -d . (u x v_b) to first order
             H[:, 0, self.i_nhm] = -_cross(u, vb)
         return self._apply(-side_v(vb)[:, None], H, R, nis_limit, consider_heading)
+
+    def _lateral_one(self, axis, sigma, nis_limit, slip, slip_updates, consider_heading):
+        """:meth:`update_lateral` of a bank of one filter: the body velocity, the rates,
+        the cross products, the speed and the noise in Python floats (in numpy's order of
+        terms), the products with the vehicle's side and of matrices numpy's as in the
+        bank's path (BLAS rounds them its own way); the equality test compares the two."""
+        c0, c1, c2, c3, c4, c5, c6, c7, c8 = self.C[0].ravel().tolist()
+        v0, v1, v2 = self.v[0].tolist()
+        b0 = c0 * v0 + c3 * v1 + c6 * v2                # C^T v
+        b1 = c1 * v0 + c4 * v1 + c7 * v2
+        b2 = c2 * v0 + c5 * v1 + c8 * v2
+        if self.i_nhm is None:
+            u = None
+
+            def side(M):                    # the side's row of (3, m) body-axis rows
+                return M[axis]
+
+            def side_v(x):                  # the side's component of a 3-vector
+                return x[axis]
+        else:
+            u = self.nhc_mount[:, :, axis]
+            uT = u[:, None, :]
+
+            def side(M):
+                return (uT @ M[None])[0, 0]
+
+            def side_v(x):
+                return float((uT @ np.array(x)[None, :, None])[0, 0, 0])
+        H = np.zeros((1, 1, self.n))
+        H[0, 0, IPHI] = -side(np.array([[0.0, -b2, b1], [b2, 0.0, -b0], [-b1, b0, 0.0]]))
+        H[0, 0, INU] = -(_I3[axis] if u is None else u[0])
+        lever = self.nhc_lever[0]
+        at_lever = self.i_nhl is not None or lever.any()
+        R = np.array([[sigma * sigma]])
+        if at_lever or slip > 0.0:
+            # _body_rate: C^T (w_ie + w_en) and the body's rate against the frame
+            lat, h = float(self.lat[0]), float(self.h[0])
+            sl, cl = math.sin(lat), math.cos(lat)
+            d = 1.0 - WGS84_E2 * (sl * sl)
+            rn = WGS84_A / math.sqrt(d)
+            rm = rn * (1.0 - WGS84_E2) / d
+            ve = v0 / (rn + h)
+            w0 = -v1 / (rm + h)
+            w1 = OMEGA_IE * cl + ve
+            w2 = OMEGA_IE * sl + ve * sl / cl
+            a0 = c0 * w0 + c3 * w1 + c6 * w2
+            a1 = c1 * w0 + c4 * w1 + c7 * w2
+            a2 = c2 * w0 + c5 * w1 + c8 * w2
+            wl = self.w_last[0].tolist()
+            n0, n1, n2 = wl[0] - a0, wl[1] - a1, wl[2] - a2
+        if slip > 0.0:                      # the IMU's own lateral acceleration and speed
+            a_lat = abs(side_v([n1 * b2 - n2 * b1, n2 * b0 - n0 * b2, n0 * b1 - n1 * b0]))
+            speed = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            q = slip * a_lat * speed
+            R = np.array([[[sigma * sigma + slip_updates * (q * q)]]])
+        if at_lever:
+            l0, l1, l2 = lever.tolist()
+            b0, b1, b2 = b0 + (n1 * l2 - n2 * l1), b1 + (n2 * l0 - n0 * l2), \
+                b2 + (n0 * l1 - n1 * l0)
+            Sl = np.array([[0.0, -l2, l1], [l2, 0.0, -l0], [-l1, l0, 0.0]])
+            H[0, 0, IPHI] -= side(Sl @ np.array([[0.0, -a2, a1], [a2, 0.0, -a0],
+                                                 [-a1, a0, 0.0]]))
+            H[0, 0, IBG] = -side(Sl)
+            if self.i_nhl is not None:
+                H[0, 0, self.i_nhl] = -side(np.array([[0.0, -n2, n1], [n2, 0.0, -n0],
+                                                      [-n1, n0, 0.0]]))
+            if self.i_sf is not None:
+                H[0, 0, self.i_sf] = side(-Sl * wl)
+        if u is not None:
+            # (see update_lateral)
+            x0, x1, x2 = u[0].tolist()
+            H[0, 0, self.i_nhm] = [-(x1 * b2 - x2 * b1), -(x2 * b0 - x0 * b2),
+                                   -(x0 * b1 - x1 * b0)]
+        return self._apply(np.array([[-side_v([b0, b1, b2])]]), H, R, nis_limit,
+                           consider_heading)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
         """Attitude of a master INS: ``C_ref = C exp(-mu x) exp(n x)``, with ``mu`` the
