@@ -146,6 +146,9 @@ class MotionAligner(EventSource, AttitudeReadout):
         a = 1.0 / np.sqrt(self._default_R.diagonal())
         self._default_white = (a, np.outer(a, a))
         self._jitter_any = (None, False)         # (a jitter covariance, whether nonzero)
+        # (the bank's attitudes, the best one's row, each one's attitude_error from it) as
+        # _weigh left them, for the covariance after it
+        self._bank_errors: tuple | None = None
         self.rejected: Counter = Counter()
         self.events: Counter = Counter()
         self._listeners: list[Callable[[AlignmentEvent], None]] = []
@@ -254,7 +257,11 @@ class MotionAligner(EventSource, AttitudeReadout):
         # hypothesis' error carried to the best one's attitude, d away (the inverse left
         # Jacobian at d: up to 1.57 x on the level axes of one 180 deg off in heading)
         w = np.exp(self._logw)
-        d = attitude_error(Cs, Cs[self._best][None])                     # (K, 3), ENU
+        known = self._bank_errors
+        if known is not None and known[0] is Cs and known[1] == self._best:
+            d = known[2]
+        else:
+            d = attitude_error(Cs, Cs[self._best][None])                 # (K, 3), ENU
         J = so3_left_jacobian_inv(d)
         covs = J @ covs @ np.swapaxes(J, -1, -2)
         return np.einsum("k,kij->ij", w, covs + d[:, :, None] * d[:, None, :]) + jitter
@@ -1110,7 +1117,8 @@ class MotionAligner(EventSource, AttitudeReadout):
             # its own attitude uncertainty on every axis
             # (once the best one has learnt something: its heading std a third of the prior)
             d = attitude_error(self.ekf.C, self.ekf.C[best][None])
-            sd = np.sqrt(np.diag(self.ekf.covariance_enu[best]))
+            Cb = self.ekf.C[best]                # (covariance_enu of the best one alone)
+            sd = np.sqrt(np.diag(Cb @ self.ekf.P[best, IPHI, IPHI] @ Cb.T))
             same = np.all(np.abs(d) <= 3.0 * sd, axis=1) & (sd[2] <= self._prior_head_std / 3.0)
             same[best] = False
             if same.any():
@@ -1132,8 +1140,12 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self.ekf.select(keep)
                 lw, nis = lw[keep], nis[keep]
                 lw -= math.log(np.exp(lw).sum())
+                d = d[keep]
+                best = int(keep[:best].sum())
             self._logw = lw
             self._best = int(np.argmax(lw))
+            # (row by row: the same as attitude_error of the rows kept)
+            self._bank_errors = (self.ekf.C, best, d) if self._best == best else None
         nis = float(nis[self._best])
         self._nis_add(t, nis, dof, nis if nis_ref is None else nis_ref)
 
