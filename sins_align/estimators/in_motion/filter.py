@@ -990,6 +990,9 @@ class InvariantEKF:
         z = np.asarray(z, dtype=float)
         z_hat, H = self.velocity_model(force, rate)
         R = np.asarray(R, dtype=float)
+        if z.size == 3 and all(map(math.isfinite, z.ravel().tolist())):
+            # (one measurement, every component: the usual case)
+            return self._apply(z - z_hat, H, R, nis_limit, consider_heading)
         ok = np.isfinite(z) if z.ndim == 1 else np.isfinite(z).all(axis=0)
         if ok.all():
             return self._apply(z - z_hat, H, R, nis_limit, consider_heading)

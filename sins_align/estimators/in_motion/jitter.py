@@ -308,7 +308,7 @@ class VelocityJitter:
         tw = ts[i0:i1 + 1]
         dt = tw[1:] - tw[:-1]
         T = t - tw[0]
-        tc = tw - tw.mean()
+        tc = tw - np.add.reduce(tw) / len(tw)            # (tw.mean(), without its wrapper)
         a = 1.0 / len(tw) + tc * (tc[-1] / (tc @ tc))
         A = np.cumsum(a[::-1])[::-1][1:]                  # sum_{k >= j}, j = 1 .. n
         f = self._f[i0 + 1:i1 + 1]
@@ -319,7 +319,7 @@ class VelocityJitter:
         jitter = (1.0 - A) @ dv
         if tone is not None:
             jitter = jitter + a @ tone.integral(tw)
-        return jitter, dv.sum(axis=0) / T
+        return jitter, np.add.reduce(dv, axis=0) / T
 
 
 class Tones:
