@@ -819,6 +819,12 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self._next_nhc = t_now + c.nhc_period
             if e < n:
                 self._snapshot(t_now)
+                # (a long block: the stored states no rewind can reach any more go now,
+                # not all at its end; _prune does the rest)
+                snaps = self._snaps
+                keep = t_now - c.max_measurement_lag - _HISTORY_MARGIN
+                while len(snaps) > 1 and snaps[1][0] < keep:
+                    snaps.popleft()
 
     def _apply(self, item, t_now):
         ts, _, kind, payload = item
