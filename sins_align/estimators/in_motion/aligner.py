@@ -1096,13 +1096,14 @@ class MotionAligner(EventSource, AttitudeReadout):
         # left converges from below
         s_max = c.inconsistent_nis
         s = 1.0
+        add = np.add.reduce                     # (ndarray.sum without its wrapper)
         for _ in range(50):
             den = lam + s
             q = cs / den
-            g = float(q.sum()) - d
+            g = float(add(q, axis=None)) - d
             if g <= 1e-7 * d:
                 break
-            s_new = s + g / float((q / den).sum())
+            s_new = s + g / float(add(q / den, axis=None))
             if s_new >= s_max:
                 return float(s_max)
             if s_new - s <= 1e-7 * s:
@@ -1356,7 +1357,8 @@ class _InnovationWindow:
 
     def sums(self, i):
         """From entry i on: their degrees of freedom and sum of y^T (H P H^T + R)^-1 y."""
-        return int(self.d[i:self.n].sum()), float(self.r[i:self.n].sum())
+        add = np.add.reduce                     # (ndarray.sum without its wrapper)
+        return int(add(self.d[i:self.n])), float(add(self.r[i:self.n]))
 
     def decomposed(self, i):
         """(c, lam) (m, 3) of the entries from i on."""

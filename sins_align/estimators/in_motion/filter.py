@@ -605,18 +605,22 @@ class InvariantEKF:
         self.t_since_feedback += T
         if self.schedule is not None:
             self.dx = (Phi @ self.dx[0])[None]
-        nav = np.array(C1 + v1 + [lat, lon, h])        # one buffer, five arrays
+        if gyro_end.ndim == 1:
+            # one buffer, seven arrays
+            nav = np.array(C1 + v1 + [lat, lon, h]
+                           + [(x - y) / (1.0 + z) for x, y, z in zip(
+                               gyro_end.tolist(), self.bg[0].tolist(), self.sf[0].tolist())]
+                           + [(x - y) / (1.0 + z) for x, y, z in zip(
+                               accel_end.tolist(), self.ba[0].tolist(), self.sa[0].tolist())])
+            self.w_last = nav[15:18].reshape(1, 3)
+            self.f_last = nav[18:21].reshape(1, 3)
+        else:
+            nav = np.array(C1 + v1 + [lat, lon, h])        # one buffer, five arrays
+            self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
+            self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
         self.C = nav[0:9].reshape(1, 3, 3)
         self.v = nav[9:12].reshape(1, 3)
         self.lat, self.lon, self.h = nav[12:13], nav[13:14], nav[14:15]
-        if gyro_end.ndim == 1:
-            self.w_last = np.array([[(x - y) / (1.0 + z) for x, y, z in zip(
-                gyro_end.tolist(), self.bg[0].tolist(), self.sf[0].tolist())]])
-            self.f_last = np.array([[(x - y) / (1.0 + z) for x, y, z in zip(
-                accel_end.tolist(), self.ba[0].tolist(), self.sa[0].tolist())]])
-        else:
-            self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
-            self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
 
     # ---------------------------------------------------------------- updates
     def _apply(self, y, H, R, nis_limit=None, consider_heading=False):
