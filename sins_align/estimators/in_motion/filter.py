@@ -105,10 +105,16 @@ from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEAR
                                                  short_run_sums, skew as _skew)
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "sample_transition",
-           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES", "EXTRA_SIZES", "extra_size"]
+           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES", "EXTRA_SIZES", "extra_size",
+           "SINGLE_FLOATS"]
 
 #: longest run of samples propagated in one closed-form step, s
 MAX_RUN = 1.0
+#: a bank of one filter computes its velocity model and non-holonomic update in Python
+#: floats (:meth:`InvariantEKF.velocity_model`, :meth:`InvariantEKF.update_lateral`); False:
+#: with the bank's arrays, the reference those are equal to, bit for bit (the equality test
+#: sets it)
+SINGLE_FLOATS = True
 
 IPHI, INU, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 #: optional 3-state blocks after the 12 core states, in this order when present: the lever
@@ -833,7 +839,7 @@ class InvariantEKF:
         regressors of the vibration, which the jitter the updates still hold follows (both
         alias alike at the update rate), and those states and their correlations took it
         into the attitude (a 5 Hz tone: the attitude beyond 3 sigma 30-50 % of the time)."""
-        if self.K == 1:
+        if self.K == 1 and SINGLE_FLOATS:
             return self._velocity_model_one(force, rate)
         z_hat, H = self._velocity_model(rate)
         if self.i_lat is not None:
@@ -846,8 +852,9 @@ class InvariantEKF:
     def _velocity_model_one(self, force=None, rate=None):
         """:meth:`velocity_model` of a bank of one filter: the same arithmetic on Python
         floats (the Earth's and transport rate, the cross products, the latency's
-        acceleration) and 2-D arrays, the products of matrices numpy's as in the bank's
-        path (BLAS rounds them its own way); the equality test compares the two."""
+        acceleration, each sum in numpy's order of terms) and 2-D arrays, the products of
+        matrices numpy's as in the bank's path (BLAS rounds them its own way): the same
+        numbers to the bit (:data:`SINGLE_FLOATS`; test_in_motion_single.py)."""
         C = self.C[0]
         c0, c1, c2, c3, c4, c5, c6, c7, c8 = C.ravel().tolist()
         v0, v1, v2 = self.v[0].tolist()
@@ -1020,7 +1027,7 @@ class InvariantEKF:
         ``slip_updates`` (how many updates it lasts), so that the updates of one turn together
         claim no more than one. Each filter of the bank takes its own speed and rate.
         ``consider_heading``: as :meth:`update_velocity`'s (a parked vehicle)."""
-        if self.K == 1:
+        if self.K == 1 and SINGLE_FLOATS:
             return self._lateral_one(axis, sigma, nis_limit, slip, slip_updates,
                                      consider_heading)
         # the vehicle's side: the IMU's ``axis`` (u None), or the unit vectors u (K, 3) in
@@ -1073,7 +1080,8 @@ class InvariantEKF:
         """:meth:`update_lateral` of a bank of one filter: the body velocity, the rates,
         the cross products, the speed and the noise in Python floats (in numpy's order of
         terms), the products with the vehicle's side and of matrices numpy's as in the
-        bank's path (BLAS rounds them its own way); the equality test compares the two."""
+        bank's path (BLAS rounds them its own way): the same numbers to the bit
+        (:data:`SINGLE_FLOATS`; test_in_motion_single.py)."""
         c0, c1, c2, c3, c4, c5, c6, c7, c8 = self.C[0].ravel().tolist()
         v0, v1, v2 = self.v[0].tolist()
         b0 = c0 * v0 + c3 * v1 + c6 * v2                # C^T v
