@@ -887,7 +887,7 @@ class MotionAligner(EventSource, AttitudeReadout):
             if nis[self._best] > self.config.nis_inflate:
                 self.events["velocity_inflated"] += 1
             ok = np.isfinite(payload[0])
-            d = int(ok.sum())
+            d = int(np.count_nonzero(ok))
             yw, M = _whitened(*ekf.last_innovation(self._best),
                               R if d == 3 else R[np.ix_(ok, ok)], s,
                               self._default_white if R is self._default_R and d == 3
