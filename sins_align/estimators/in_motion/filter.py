@@ -786,34 +786,34 @@ class InvariantEKF:
 
     def _feedback_one(self, dx) -> None:
         """:meth:`feedback` of a bank of one filter, dx (n,): the same arithmetic in floats
-        (the attitude, velocity and biases in one new buffer)."""
+        (the attitude, velocity, biases and the optional blocks that subtract in one new
+        buffer)."""
         d = dx.tolist()
         C = _mm(self.C[0].ravel().tolist(), list(so3_exp_entries(-d[0], -d[1], -d[2])))
         n0, n1, n2 = d[3:6]
         v0, v1, v2 = self.v[0].tolist()
         b = self.bg[0].tolist() + self.ba[0].tolist()
-        buf = np.array(C + [v0 - (C[0] * n0 + C[1] * n1 + C[2] * n2),
-                            v1 - (C[3] * n0 + C[4] * n1 + C[5] * n2),
-                            v2 - (C[6] * n0 + C[7] * n1 + C[8] * n2)]
-                       + [x - y for x, y in zip(b, d[6:12])])
+        vals = (C + [v0 - (C[0] * n0 + C[1] * n1 + C[2] * n2),
+                     v1 - (C[3] * n0 + C[4] * n1 + C[5] * n2),
+                     v2 - (C[6] * n0 + C[7] * n1 + C[8] * n2)]
+                + [x - y for x, y in zip(b, d[6:12])])
+        blocks = [(name, sl) for name, sl in (
+            ("lever", self.i_lev), ("mount", self.i_mnt), ("sf", self.i_sf), ("sa", self.i_sa),
+            ("nhc_lever", self.i_nhl), ("latency", self.i_lat)) if sl is not None]
+        for name, sl in blocks:
+            vals += [x - y for x, y in zip(getattr(self, name)[0].tolist(), d[sl])]
+        buf = np.array(vals)
         self.C = buf[0:9].reshape(1, 3, 3)
         self.v = buf[9:12].reshape(1, 3)
         self.bg = buf[12:15].reshape(1, 3)
         self.ba = buf[15:18].reshape(1, 3)
-        if self.i_lev is not None:
-            self.lever = (self.lever[0] - dx[self.i_lev])[None]
-        if self.i_mnt is not None:
-            self.mount = (self.mount[0] - dx[self.i_mnt])[None]
-        if self.i_sf is not None:
-            self.sf = (self.sf[0] - dx[self.i_sf])[None]
-        if self.i_sa is not None:
-            self.sa = (self.sa[0] - dx[self.i_sa])[None]
-        if self.i_nhl is not None:
-            self.nhc_lever = (self.nhc_lever[0] - dx[self.i_nhl])[None]
+        i = 18
+        for name, sl in blocks:
+            m = sl.stop - sl.start
+            setattr(self, name, buf[i:i + m].reshape(1, m))
+            i += m
         if self.i_nhm is not None:
             self.nhc_mount = np.dot(so3_exp(-dx[self.i_nhm]), self.nhc_mount[0])[None]
-        if self.i_lat is not None:
-            self.latency = (self.latency[0] - dx[self.i_lat])[None]
 
     def _body_rate(self, rate=None):
         """(a, w_nb), each (K, 3), body axes: the navigation frame's rate (Earth and
