@@ -1025,10 +1025,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         if ekf.K > 1:
             return
         sp = self.config.specs
-        zg = (max(map(abs, ekf.bg[0].tolist())) / sp.gyro_bias if sp.gyro_bias > 0.0
-              else 0.0)
-        za = (max(map(abs, ekf.ba[0].tolist())) / sp.accel_bias if sp.accel_bias > 0.0
-              else 0.0)
+        zg = _abs_max(ekf.bg[0].tolist()) / sp.gyro_bias if sp.gyro_bias > 0.0 else 0.0
+        za = _abs_max(ekf.ba[0].tolist()) / sp.accel_bias if sp.accel_bias > 0.0 else 0.0
         g0, a0 = self.bias_spec_ratio
         self.bias_spec_ratio = (max(g0, zg), max(a0, za))
         if self.specs_consistent and max(zg, za) >= BIAS_BEYOND_SPEC:
@@ -1278,6 +1276,12 @@ def _fl(x):
     except (TypeError, ValueError):
         return None
     return x if math.isfinite(x) else None
+
+
+def _abs_max(xs) -> float:
+    """numpy's ``np.abs(x).max()`` of a few floats (NaN if any is NaN)."""
+    a = [abs(x) for x in xs]
+    return math.nan if any(x != x for x in a) else max(a)
 
 
 def _whitened(y, S, R, s, white=None):
