@@ -867,17 +867,7 @@ class InvariantEKF:
         else:
             # _body_rate: C^T (w_ie + w_en) and the body's rate against the frame
             lat, h = float(self.lat[0]), float(self.h[0])
-            sl, cl = math.sin(lat), math.cos(lat)
-            d = 1.0 - WGS84_E2 * (sl * sl)
-            rn = WGS84_A / math.sqrt(d)
-            rm = rn * (1.0 - WGS84_E2) / d
-            ve = v0 / (rn + h)
-            w0 = -v1 / (rm + h)
-            w1 = OMEGA_IE * cl + ve
-            w2 = OMEGA_IE * sl + ve * sl / cl
-            a0 = c0 * w0 + c3 * w1 + c6 * w2
-            a1 = c1 * w0 + c4 * w1 + c7 * w2
-            a2 = c2 * w0 + c5 * w1 + c8 * w2
+            a0, a1, a2 = _frame_rate_floats(lat, h, v0, v1, c0, c1, c2, c3, c4, c5, c6, c7, c8)
             r = (self.w_last if rate is None else rate)[0].tolist()
             n0, n1, n2 = r[0] - a0, r[1] - a1, r[2] - a2
             l0, l1, l2 = lever.tolist()
@@ -902,7 +892,7 @@ class InvariantEKF:
             f0, f1, f2 = (self.f_last if force is None else force)[0].tolist()
             if lat is None:
                 lat, h = float(self.lat[0]), float(self.h[0])
-                sl = math.sin(lat)
+            sl = math.sin(lat)
             s2 = sl * sl
             g = (GRAVITY_EQUATOR * (1.0 + SOMIGLIANA_K * s2) / math.sqrt(1.0 - WGS84_E2 * s2)
                  - GRAVITY_PER_METRE * h)
@@ -1113,17 +1103,7 @@ class InvariantEKF:
         if at_lever or slip > 0.0:
             # _body_rate: C^T (w_ie + w_en) and the body's rate against the frame
             lat, h = float(self.lat[0]), float(self.h[0])
-            sl, cl = math.sin(lat), math.cos(lat)
-            d = 1.0 - WGS84_E2 * (sl * sl)
-            rn = WGS84_A / math.sqrt(d)
-            rm = rn * (1.0 - WGS84_E2) / d
-            ve = v0 / (rn + h)
-            w0 = -v1 / (rm + h)
-            w1 = OMEGA_IE * cl + ve
-            w2 = OMEGA_IE * sl + ve * sl / cl
-            a0 = c0 * w0 + c3 * w1 + c6 * w2
-            a1 = c1 * w0 + c4 * w1 + c7 * w2
-            a2 = c2 * w0 + c5 * w1 + c8 * w2
+            a0, a1, a2 = _frame_rate_floats(lat, h, v0, v1, c0, c1, c2, c3, c4, c5, c6, c7, c8)
             wl = self.w_last[0].tolist()
             n0, n1, n2 = wl[0] - a0, wl[1] - a1, wl[2] - a2
         if slip > 0.0:                      # the IMU's own lateral acceleration and speed
@@ -1213,3 +1193,20 @@ def propagate_reference(ekf: InvariantEKF, dt, gyro, accel) -> None:
         ekf.C[0], ekf.v[0], ekf.lat[0], ekf.lon[0], ekf.h[0] = s.C, s.v, s.lat, s.lon, s.h
         ekf.w_last[0] = w
         ekf.f_last[0] = f
+
+
+def _frame_rate_floats(lat, h, v0, v1, c0, c1, c2, c3, c4, c5, c6, c7, c8):
+    """C^T (w_ie + w_en) in Python floats, C = [[c0, c1, c2], [c3, c4, c5], [c6, c7, c8]]
+    (body to ENU), at latitude ``lat`` (rad), height ``h`` and east / north velocity ``v0``,
+    ``v1``: the frame's rate in the body axes as :meth:`InvariantEKF._body_rate` computes it
+    for one filter, term for term (the single-filter velocity and lateral models share it)."""
+    sl, cl = math.sin(lat), math.cos(lat)
+    d = 1.0 - WGS84_E2 * (sl * sl)
+    rn = WGS84_A / math.sqrt(d)
+    rm = rn * (1.0 - WGS84_E2) / d
+    ve = v0 / (rn + h)
+    w0 = -v1 / (rm + h)
+    w1 = OMEGA_IE * cl + ve
+    w2 = OMEGA_IE * sl + ve * sl / cl
+    return (c0 * w0 + c3 * w1 + c6 * w2, c1 * w0 + c4 * w1 + c7 * w2,
+            c2 * w0 + c5 * w1 + c8 * w2)
