@@ -149,3 +149,26 @@ def test_replay_says_it_in_its_summary(tmp_path, capsys):
     np.testing.assert_allclose(bad["final"]["std_enu_deg"], [180.0] * 3)
     assert not any(c["aligned"] for c in bad["aligned_changes"])
     assert good["status"] != "fault" and 0.7 < good["gyro_noise_ratio"] < 2.0
+
+
+@pytest.mark.parametrize("quantum", [1e-5, 2e-5, 1e-4])
+def test_a_navigation_gyros_quantized_increments_are_not_called_noise(quantum):
+    """A navigation gyro giving whole counts of a 2-20 arcsec angle quantum: the quantization
+    reads as a flat floor 50-250x the preset's noise (found by the sensor-error sweep: a
+    false fault, never aligned). The quantum is measured from the increments' lattice and
+    what it explains (q^2 / 12 dt) is not counted; tactical data as 'navigation' with a
+    finer quantum are still caught."""
+    from sins_align.core.specs import grade_specs
+
+    nav = grade_specs("navigation").with_(gyro_quantization=quantum)
+    r = simulate(120.0, rate=100.0, lat_deg=LAT, rpy_deg=(1, -2, 40), specs=nav, seed=0)
+    al = Aligner(AlignConfig(latitude_deg=LAT, specs="navigation"))
+    al.update(r.t, r.gyro, r.accel)
+    fit = al.filter.gyro_noise
+    assert math.sqrt(fit.q_quant) / al.config.specs.gyro_arw > 90.0 * quantum / 1e-5
+    assert al.specs_consistent and al.gyro_noise_ratio is None and al.status != "fault"
+    tac = grade_specs("tactical").with_(gyro_quantization=5e-6)
+    r = simulate(120.0, rate=100.0, lat_deg=LAT, rpy_deg=(1, -2, 40), specs=tac, seed=0)
+    al = Aligner(AlignConfig(latitude_deg=LAT, specs="navigation"))
+    al.update(r.t, r.gyro, r.accel)
+    assert not al.specs_consistent and al.gyro_noise_ratio > 50.0

@@ -401,13 +401,18 @@ class Aligner(EventSource, AttitudeReadout):
     def gyro_noise_ratio(self) -> float | None:
         """The gyro's white-noise floor the backtrack measured (the lower of its two
         octaves' levels) over the configured ``gyro_arw`` (both as densities' roots); None
-        before the backtrack, where the spectrum shows no flat floor (motion, tones,
-        quantization) or gyro_arw is 0."""
+        before the backtrack, where the spectrum shows no flat floor (motion, tones, a
+        rising quantization noise), where the floor is within 4x (in density) of what the
+        angle increments' own quantum gives (a navigation gyro's 4-arcsec counts read 80x
+        the preset's noise), or gyro_arw is 0."""
         fit = self.filter.gyro_noise
         arw = self.config.specs.gyro_arw
         if fit is None or not fit.flat or arw <= 0.0:
             return None
-        return math.sqrt(min(fit.q_top, fit.q_next)) / arw
+        floor = min(fit.q_top, fit.q_next)
+        if floor <= 4.0 * fit.q_quant:
+            return None             # the increments' quantization explains it
+        return math.sqrt(floor) / arw
 
     @property
     def specs_consistent(self) -> bool:

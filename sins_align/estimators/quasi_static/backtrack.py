@@ -322,6 +322,9 @@ class GyroNoiseFit:
 
     q_top: float | None
     q_next: float | None
+    #: the white density the increments' quantization alone would give, rad^2/s (q^2/(12 dt)
+    #: for a quantum q of the angle increments; 0 where the rates are not on a lattice)
+    q_quant: float = 0.0
 
     @property
     def flat(self) -> bool:
@@ -346,9 +349,34 @@ def measure_gyro_noise(dt: np.ndarray, w: np.ndarray,
     """:class:`GyroNoiseFit` of the rates ``w`` (M, 3) with intervals ``dt`` (M,); the
     samples ``bridging`` marks (put in for missing ones) are left out."""
     ok = np.ones(len(dt), dtype=bool) if bridging is None else ~np.asarray(bridging, bool)
-    fs = 1.0 / median(dt)
+    h = median(dt)
+    fs = 1.0 / h
+    q = increment_quantum(w[ok] * h)
     return GyroNoiseFit(band_noise_density(dt, w, ok, 0.2 * fs, 0.4 * fs),
-                        band_noise_density(dt, w, ok, 0.1 * fs, 0.2 * fs))
+                        band_noise_density(dt, w, ok, 0.1 * fs, 0.2 * fs),
+                        q * q / (12.0 * h))
+
+
+def increment_quantum(x: np.ndarray) -> float:
+    """The largest quantum (over the three axes) of increments ``x`` (M, 3) that lie on a
+    lattice (an IMU giving whole counts of an angle quantum, as ring-laser and many
+    navigation-grade gyros do): the smallest step between their distinct values, where at
+    least 99 % of them are whole multiples of it (to 1e-3 of a step) and they take fewer
+    distinct values than half the samples; 0 when no axis is on a lattice."""
+    out = 0.0
+    for k in range(x.shape[1]):
+        v = np.unique(x[:, k])
+        if len(v) < 2 or len(v) > len(x) // 2:
+            continue
+        step = np.diff(v)
+        step = step[step > 1e-9 * max(float(np.abs(v).max()), 1e-300)]
+        if not len(step):
+            continue
+        q = float(step.min())
+        r = (x[:, k] - v[0]) / q
+        if np.mean(np.abs(r - np.round(r)) <= 1e-3) >= 0.99:
+            out = max(out, q)
+    return out
 
 
 def band_noise_density(dt: np.ndarray, x: np.ndarray, ok: np.ndarray, lo: float,
