@@ -98,3 +98,24 @@ def test_trajectory_warm_up_settles_exponentially():
                                rtol=1e-6)
     with pytest.raises(ValueError):
         simulate_trajectory(car_city(), 100.0, TAC, duration=10.0, warmup_time=0.0)
+
+
+# ------------------------------------------------------------------ the node's parameters
+def test_the_node_parameters_carry_the_instability():
+    """align_node / replay / imu_sim_node take the datasheet's instability (deg/h, micro-g)
+    and correlation time; -1 keeps the grade's (none, 300 s)."""
+    from sins_align.core.specs import DPH, UG
+    from sins_align.ros.params import check_param, config_from_params, defaults, sensor_specs
+
+    v = defaults()
+    assert sensor_specs(v) == NAV
+    v.update(latitude=34.0, gyro_bias_instability=0.003, accel_bias_instability=30.0,
+             bias_correlation_time=300.0)
+    sp = sensor_specs(v)
+    assert sp.gyro_bias_instability == pytest.approx(0.003 * DPH)
+    assert sp.accel_bias_instability == pytest.approx(30.0 * UG)
+    assert sp.bias_correlation_time == 300.0
+    assert config_from_params(v).specs == sp
+    assert check_param("bias_correlation_time", 0.0) is not None
+    assert check_param("bias_correlation_time", -1.0) is None
+    assert check_param("accel_bias_instability", -2.0) is not None
