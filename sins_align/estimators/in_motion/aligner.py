@@ -532,8 +532,10 @@ class MotionAligner(EventSource, AttitudeReadout):
         for i in range(K):
             P[i][IPHI, IPHI] = Cs[i].T @ Pn @ Cs[i]
             P[i][INU, INU] = Cs[i].T @ Pv @ Cs[i]
-        P[:, IBG, IBG] = np.eye(3) * c.specs.gyro_bias ** 2
-        P[:, IBA, IBA] = np.eye(3) * c.specs.accel_bias ** 2
+        # the bias at the start: the turn-on bias plus the wander's value then (stationary)
+        sp = c.specs
+        P[:, IBG, IBG] = np.eye(3) * (sp.gyro_bias ** 2 + sp.gyro_bias_instability ** 2)
+        P[:, IBA, IBA] = np.eye(3) * (sp.accel_bias ** 2 + sp.accel_bias_instability ** 2)
         i = 12
         for x in extra:
             std = {"lever": c.lever_arm_std, "mount": c.mounting_std_deg * DEG,
