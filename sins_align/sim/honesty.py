@@ -386,6 +386,9 @@ def _build_cases() -> dict[str, Case]:
             accel_bias_instability=ratio * base.accel_bias, bias_correlation_time=tau),
             expectations=_HONEST, note=f"bias instability {ratio:g}x the biases, correlation "
                                        f"time {tau:g} s"))
+    cases.append(Case("warmup_nav_3x_300s", 600.0, specs=nav.with_(
+        gyro_warmup=3.0 * nav.gyro_bias, accel_warmup=3.0 * nav.accel_bias, warmup_time=300.0),
+        expectations=_HONEST, note="power-on biases of 3x the biases settling over 300 s"))
     cases.append(Case("quantized_nav", 600.0, specs=nav.with_(gyro_quantization=2e-5,
                                                               accel_quantization=5e-3),
                       expectations=_HONEST, note="increments quantised: 4 arcsec, 5 mm/s"))

@@ -59,8 +59,8 @@ Sensor errors (each sample, per axis ``i``)::
   ``arw / sqrt(dt)``, ``vrw / sqrt(dt)``, from a :class:`~sins_align.core.specs.SensorSpecs`;
   plus, when the specs give them, the bias wander (first-order Gauss-Markov of stationary
   std ``*_bias_instability`` and correlation time ``bias_correlation_time``, started from its
-  stationary distribution) and a warm-up (``warmup_ratio``: a power-on bias
-  ``N(0, (warmup_ratio bias)^2)`` per axis that settles as ``exp(-t / warmup_time)``);
+  stationary distribution) and a warm-up (a power-on bias ``N(0, *_warmup^2)`` per axis
+  that settles as ``exp(-t / warmup_time)``);
   the samples are then quantised as increments (``*_quantization``, rad and m/s) with the
   residual carried, as :mod:`sins_align.sim.simulator` does;
 - ``vib``: rotor vibration (:class:`Vibration`), an additive input that is not part of the
@@ -515,8 +515,7 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
                         gnss_dropouts: Sequence[tuple[float, float]] = (),
                         gnss_dropout_prob: float = 0.0, gnss_vertical: bool = True,
                         gnss_pos_sigma: float = 0.0,
-                        imu_position=(0.0, 0.0, 0.0), warmup_ratio: float = 0.0,
-                        warmup_time: float = 300.0) -> TrajectoryResult:
+                        imu_position=(0.0, 0.0, 0.0)) -> TrajectoryResult:
     """Simulate ``traj`` (see the module docstring).
 
     Parameters
@@ -539,9 +538,6 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
     gnss_pos_sigma : m — white noise std of each ENU axis of the GNSS position (0: none).
     imu_position : (3,) m, body axes — from the trajectory's point (a car's rear-axle centre)
         to the IMU; the truth (v, position) is then the IMU's (see the module docstring).
-    warmup_ratio : — 1-sigma power-on bias per axis as a multiple of the specs' biases,
-        settling as ``exp(-t / warmup_time)`` (0: none).
-    warmup_time : s (> 0) — the warm-up's time constant.
     """
     if not rate > 0.0:
         raise ValueError(f"rate must be > 0 Hz, got {rate!r}")
@@ -550,7 +546,7 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
         raise ValueError(f"rate / gnss_rate must be a whole number, got {rate} / {gnss_rate}")
     for nm, val in (("gnss_sigma", gnss_sigma), ("gnss_latency", gnss_latency),
                     ("gnss_pos_sigma", gnss_pos_sigma), ("gyro_scale_ppm", gyro_scale_ppm),
-                    ("accel_scale_ppm", accel_scale_ppm), ("warmup_ratio", warmup_ratio)):
+                    ("accel_scale_ppm", accel_scale_ppm)):
         if not (np.isfinite(val) and val >= 0.0):
             raise ValueError(f"{nm} must be finite and >= 0, got {val!r}")
     if not (0.0 <= gnss_dropout_prob <= 1.0):
@@ -562,8 +558,6 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
     imu_pos = np.asarray(imu_position, dtype=float).reshape(3)
     if not np.all(np.isfinite(imu_pos)):
         raise ValueError(f"imu_position must be finite, got {imu_pos.tolist()}")
-    if not (np.isfinite(warmup_time) and warmup_time > 0.0):
-        raise ValueError(f"warmup_time must be finite and > 0, got {warmup_time!r}")
     if isinstance(specs, str):
         specs = grade_specs(specs)
     dt = 1.0 / rate
@@ -607,19 +601,19 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
         gyro += gb + s_imu.normal(0.0, specs.gyro_arw / np.sqrt(dt), (n, 3))
         accel += ab + s_imu.normal(0.0, specs.accel_vrw / np.sqrt(dt), (n, 3))
         a = np.exp(-dt / specs.bias_correlation_time)
-        warm = s_warm.standard_normal((2, 3)) * warmup_ratio    # both drawn always
-        decay = np.exp(-t[1:] / warmup_time)[:, None]
-        for out, bias, wander, q, rng, w in (
-                (gyro, specs.gyro_bias, specs.gyro_bias_instability, specs.gyro_quantization,
-                 s_gwander, warm[0]),
-                (accel, specs.accel_bias, specs.accel_bias_instability, specs.accel_quantization,
-                 s_awander, warm[1])):
+        warm = s_warm.standard_normal((2, 3))        # both drawn always
+        decay = np.exp(-t[1:] / specs.warmup_time)[:, None]
+        for out, wander, q, rng, w in (
+                (gyro, specs.gyro_bias_instability, specs.gyro_quantization, s_gwander,
+                 warm[0] * specs.gyro_warmup),
+                (accel, specs.accel_bias_instability, specs.accel_quantization, s_awander,
+                 warm[1] * specs.accel_warmup)):
             if wander > 0.0:            # first-order Gauss-Markov from its stationary state
                 x0 = rng.normal(0.0, wander, 3)
                 drive = rng.normal(0.0, wander * np.sqrt(1.0 - a * a), (n, 3))
                 out += lfilter([1.0], [1.0, -a], drive, axis=0, zi=a * x0[None])[0]
-            if warmup_ratio > 0.0:
-                out += (w * bias) * decay
+            if np.any(w != 0.0):
+                out += w * decay
             if q > 0.0:                 # increments quantised, the residual carried
                 out[:] = np.diff(np.round(np.cumsum(out * dt, axis=0) / q), axis=0,
                                  prepend=0.0) * (q / dt)

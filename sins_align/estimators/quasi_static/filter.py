@@ -74,12 +74,13 @@ class AlignmentFilter(FastPath, Backtrack):
         # sigma off, flagged aligned). Over times short next to tau the wander is a random
         # walk of density s sqrt(2 / tau): the same walk of the tilt (E and N), 2 s^2 /
         # (tau g^2) rad^2/s, is level process noise, which widens the heading that the level
-        # drift gives. (The gyro's wander is covered by the considered bias alone.)
-        q_lvl = q_att + 2.0 * sp.accel_bias_instability ** 2 / (
-            sp.bias_correlation_time * self.g ** 2)
+        # drift gives. (The gyro's wander is covered by the considered bias alone.) A warm-up
+        # in the specs is covered as one more such wander, of its size and time constant.
+        q_lvl = q_att + 2.0 * (sp.accel_bias_instability ** 2 / sp.bias_correlation_time
+                               + sp.accel_warmup ** 2 / sp.warmup_time) / self.g ** 2
         self.Qc = np.diag([q_lvl, q_lvl, q_att] + [sp.accel_vrw ** 2] * 3)
-        bg2 = sp.gyro_bias ** 2 + sp.gyro_bias_instability ** 2
-        ba2 = sp.accel_bias ** 2 + sp.accel_bias_instability ** 2
+        bg2 = sp.gyro_bias ** 2 + sp.gyro_bias_instability ** 2 + sp.gyro_warmup ** 2
+        ba2 = sp.accel_bias ** 2 + sp.accel_bias_instability ** 2 + sp.accel_warmup ** 2
         self._bias_var = np.array([ba2] * 3 + [bg2] * 3)
         self.Gamma = bias_input_matrix(c.model)
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
