@@ -143,6 +143,11 @@ def test_the_node_parameters_carry_the_instability():
     assert check_param("bias_correlation_time", 0.0) is not None
     assert check_param("bias_correlation_time", -1.0) is None
     assert check_param("accel_bias_instability", -2.0) is not None
+    v.update(gyro_warmup=0.03, accel_warmup=300.0, warmup_time=120.0)
+    sp = sensor_specs(v)
+    assert (sp.gyro_warmup, sp.accel_warmup, sp.warmup_time) == pytest.approx(
+        (0.03 * DPH, 300.0 * UG, 120.0))
+    assert check_param("warmup_time", 0.0) is not None
 
 
 # ------------------------------------------------------------------ in motion

@@ -100,7 +100,7 @@ def _check_scale(value) -> str | None:
 
 def _check_correlation_time(value) -> str | None:
     if value != -1.0 and not value > 0.0:
-        return "bias_correlation_time must be -1 (from grade) or > 0 s"
+        return "bias_correlation_time and warmup_time must be -1 (from grade) or > 0 s"
     return None
 
 
@@ -150,6 +150,12 @@ PARAMS: tuple[ParamSpec, ...] = (
               "micro-g (-1 = from grade: none).", -1.0, 1e6),
     ParamSpec("bias_correlation_time", -1.0, "Correlation time of the bias instability, s "
               "(-1 = from grade: 300).", -1.0, 1e6, rule=_check_correlation_time),
+    ParamSpec("gyro_warmup", -1.0, "Gyro warm-up: 1-sigma extra bias at power-on that settles "
+              "over warmup_time, deg/h (-1 = from grade: none).", -1.0, 1e6),
+    ParamSpec("accel_warmup", -1.0, "Accelerometer warm-up 1-sigma, micro-g (-1 = from grade: "
+              "none).", -1.0, 1e6),
+    ParamSpec("warmup_time", -1.0, "Time constant of the warm-up, s (-1 = from grade: 300).",
+              -1.0, 1e6, rule=_check_correlation_time),
     ParamSpec("coarse_velocity_noise", 0.01, "Zero-velocity measurement noise of the coarse "
               "pass, m/s for updates 0.01 s apart (scaled to the update interval).", 1e-6, 10.0),
     ParamSpec("coarse_update_period", 0.1, "Coarse-pass update interval, s (0 = every sample, "
@@ -273,7 +279,8 @@ SIM_PARAMS: tuple[ParamSpec, ...] = _scoped(
     replace(PARAMS_BY_NAME["grade"], description="Sensor grade preset."),
     *(PARAMS_BY_NAME[n] for n in ("gyro_bias", "gyro_arw", "accel_bias", "accel_vrw",
                                   "gyro_bias_instability", "accel_bias_instability",
-                                  "bias_correlation_time")),
+                                  "bias_correlation_time", "gyro_warmup", "accel_warmup",
+                                  "warmup_time")),
     ParamSpec("sway", "none", "Sway preset: none, car (parked car being boarded), ship (moored "
               "ship).", choices=tuple(SWAY_PRESETS)),
     ParamSpec("sway_amplitude", 1.0, "Factor on the sway preset amplitudes.", 0.0, 100.0),
@@ -322,7 +329,8 @@ _TO_CONFIG = {
 }
 _SPEC_UNITS = {"gyro_bias": DPH, "gyro_arw": DPSH, "accel_bias": UG, "accel_vrw": UG_PSHZ,
                "gyro_bias_instability": DPH, "accel_bias_instability": UG,
-               "bias_correlation_time": 1.0}
+               "bias_correlation_time": 1.0, "gyro_warmup": DPH, "accel_warmup": UG,
+               "warmup_time": 1.0}
 
 
 def param_spec(name: str, scope: str = "align") -> ParamSpec | None:
@@ -393,7 +401,7 @@ def defaults() -> dict[str, Any]:
 def sensor_specs(values: dict[str, Any]):
     """The :class:`~sins_align.core.specs.SensorSpecs` of parameter values: the ``grade``
     preset with ``gyro_bias``, ``gyro_arw``, ``accel_bias``, ``accel_vrw``, the bias
-    instabilities and their correlation time where >= 0 (absent = from the grade)."""
+    instabilities, the warm-ups and their times where >= 0 (absent = from the grade)."""
     specs = grade_specs(values["grade"])
     over = {k: float(values[k]) * unit for k, unit in _SPEC_UNITS.items()
             if values.get(k, -1.0) >= 0.0}
