@@ -962,7 +962,7 @@ class ImuSimulator:
     gyro_bias : (3,) rad/s, body, optional — constant gyro bias (default: drawn N(0, spec)).
     accel_bias : (3,) m/s^2, body, optional — constant accel bias (default: drawn N(0, spec)).
     noise : bool — False switches off the random processes (white noise and bias wander);
-        constant biases and quantisation stay.
+        constant biases, the warm-up (``specs.gyro_warmup`` etc.) and quantisation stay.
     """
 
     def __init__(self, rate: float = 100.0, lat_deg: float = 34.0, height_m: float = 0.0,
