@@ -88,7 +88,8 @@ def mcap_run(work, sim_bag):
     """One replay of the mcap bag with every output and the truth."""
     d = work / "run_mcap"
     d.mkdir()
-    rc = replay.main([str(sim_bag), "--latitude", str(LAT), "--truth-topic", "/imu_sim/truth",
+    rc = replay.main([str(sim_bag), "--latitude", str(LAT), "--grade", "navigation",
+                      "--truth-topic", "/imu_sim/truth",
                       "--output", str(d / "out"), "--csv", str(d / "a.csv"),
                       "--summary-json", str(d / "s.json"), "--quiet"])
     assert rc == 0
@@ -191,7 +192,8 @@ def test_replay_gives_identical_results_from_sqlite3_and_ros1_bags(work, sim_bag
     _ros1_copy(sim_bag, ros1)
     for bag in (db, ros1):
         js = work / f"{bag.name}.json"
-        rc, _, err = cli(replay, [bag, "--latitude", LAT, "--truth-topic", "/imu_sim/truth",
+        rc, _, err = cli(replay, [bag, "--latitude", LAT, "--grade", "navigation",
+                                  "--truth-topic", "/imu_sim/truth",
                                   "--summary-json", js, "--quiet"], capsys)
         assert rc == 0, err
         s = json.loads(js.read_text())
@@ -429,7 +431,8 @@ def test_block_fed_replay_of_a_units_fault_and_a_1khz_bag(work):
 
 def test_params_yaml_is_the_node_format_and_flags_override_it(work, sim_bag, capsys):
     y = work / "align.yaml"
-    y.write_text("align_node:\n  ros__parameters:\n    latitude: 34.0\n    model: conventional\n"
+    y.write_text("align_node:\n  ros__parameters:\n    latitude: 34.0\n    grade: navigation\n"
+                 "    model: conventional\n"
                  "    backtrack_time: 30.0\n")
     js = work / "params.json"
     rc, _, err = cli(replay, [sim_bag, "--params", y, "--model", "constant", "--summary-json",
@@ -502,6 +505,7 @@ def test_psins_log_import_and_replay_agree_from_a_large_initial_error(work, caps
         js = work / f"psins_{name}.json"
         procs.append((js, subprocess.Popen(
             [sys.executable, "-m", "sins_align.replay", str(bag), "--latitude", str(PSINS_LAT),
+             "--grade", "navigation",
              "--initial-rpy", *map(str, rpy), "--summary-json", str(js), "--quiet"],
             stderr=subprocess.PIPE, text=True)))
     res = []
@@ -627,30 +631,38 @@ def bad_inputs(work, sim_bag):
     (d / "bad_syntax.yaml").write_text("sins_align: [\n")
     (d / "bad_value.yaml").write_text("/**:\n  ros__parameters:\n    latitude: 34.0\n"
                                       "    backtrack_time: -1.0\n")
+    (d / "three_specs.yaml").write_text("/**:\n  ros__parameters:\n    latitude: 34.0\n"
+                                        "    gyro_bias: 0.5\n    gyro_arw: 0.01\n"
+                                        "    accel_bias: 200.0\n")
     (d / "no_node.yaml").write_text("other_node:\n  ros__parameters:\n    latitude: 34.0\n")
     (d / "exists").mkdir()
     (d / "exists.csv").write_text("x\n")
     return d
 
 
+#: the site and grade every case gives unless it is about them
+SITE = ["--latitude", "34", "--grade", "navigation"]
 REPLAY_ERRORS = {
-    "missing file": (["{d}/nope.mcap", "--latitude", "34"], "does not exist"),
-    "not a bag": (["{d}/notes.txt", "--latitude", "34"], "not a rosbag2"),
-    "corrupt bag": (["{d}/garbage.mcap", "--latitude", "34"], "cannot read bag"),
-    "truncated bag": (["{d}/truncated.mcap", "--latitude", "34"], "cannot read bag"),
-    "topic absent": (["{bag}", "--latitude", "34", "--topic", "/nope"], "not in"),
-    "topic wrong type": (["{bag}", "--latitude", "34", "--topic", "/imu_sim/truth"],
+    "missing file": (["{d}/nope.mcap", *SITE], "does not exist"),
+    "not a bag": (["{d}/notes.txt", *SITE], "not a rosbag2"),
+    "corrupt bag": (["{d}/garbage.mcap", *SITE], "cannot read bag"),
+    "truncated bag": (["{d}/truncated.mcap", *SITE], "cannot read bag"),
+    "topic absent": (["{bag}", *SITE, "--topic", "/nope"], "not in"),
+    "topic wrong type": (["{bag}", *SITE, "--topic", "/imu_sim/truth"],
                          "not sensor_msgs/msg/Imu"),
-    "truth wrong type": (["{bag}", "--latitude", "34", "--truth-topic", "/imu/data_raw"],
+    "truth wrong type": (["{bag}", *SITE, "--truth-topic", "/imu/data_raw"],
                          "not geometry_msgs/msg/QuaternionStamped"),
-    "no samples": (["{d}/empty_imu", "--latitude", "34"], "no messages"),
-    "output exists": (["{bag}", "--latitude", "34", "--output", "{d}/exists"], "already exists"),
-    "csv exists": (["{bag}", "--latitude", "34", "--csv", "{d}/exists.csv"], "already exists"),
-    "summary exists": (["{bag}", "--latitude", "34", "--summary-json", "{d}/exists.csv"],
+    "no samples": (["{d}/empty_imu", *SITE], "no messages"),
+    "output exists": (["{bag}", *SITE, "--output", "{d}/exists"], "already exists"),
+    "csv exists": (["{bag}", *SITE, "--csv", "{d}/exists.csv"], "already exists"),
+    "summary exists": (["{bag}", *SITE, "--summary-json", "{d}/exists.csv"],
                        "already exists"),
     "latitude missing": (["{bag}"], "latitude is required"),
+    "grade missing": (["{bag}", "--latitude", "34"], "grade is required: pass --grade"),
+    "specs without grade": (["{bag}", "--params", "{d}/three_specs.yaml"],
+                            "grade is required"),
     "latitude out of range": (["{bag}", "--latitude", "95"], "latitude"),
-    "bad model": (["{bag}", "--latitude", "34", "--model", "kalman"], "model"),
+    "bad model": (["{bag}", *SITE, "--model", "kalman"], "model"),
     "params syntax": (["{bag}", "--params", "{d}/bad_syntax.yaml"], "parameters file"),
     "params value": (["{bag}", "--params", "{d}/bad_value.yaml"], "backtrack_time"),
     "params no node": (["{bag}", "--params", "{d}/no_node.yaml"], "ros__parameters"),
@@ -680,8 +692,8 @@ def test_plot_without_matplotlib_fails_before_any_work(bad_inputs, sim_bag, caps
     monkeypatch.setitem(sys.modules, "matplotlib", None)      # import matplotlib -> ImportError
     d = bad_inputs
     before = listing(d)
-    rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--plot", d / "p.png", "--summary-json",
-                              d / "p.json"], capsys)
+    rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--grade", "navigation", "--plot",
+                              d / "p.png", "--summary-json", d / "p.json"], capsys)
     assert rc != 0 and err.count("\n") == 1 and "pip install matplotlib" in err
     assert listing(d) == before
 
@@ -696,7 +708,8 @@ def test_plot_is_written(work, sim_bag, capsys):
            .read_text().split() if r.startswith("matplotlib==")]
     assert pin == [f"matplotlib=={matplotlib.__version__}"], (pin, matplotlib.__version__)
     png = work / "plot.png"
-    rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--truth-topic", "/imu_sim/truth",
+    rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--grade", "navigation",
+                              "--truth-topic", "/imu_sim/truth",
                               "--plot", png, "--quiet"], capsys)
     assert rc == 0, err
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -499,7 +499,7 @@ def test_replay_names_a_corrupt_imu_message(tmp_path, ts2, capsys):
     ns, raw = items[13]
     items[13] = (ns, raw[:-1])
     write_bag(tmp_path / "bag", items)
-    rc = replay.main([str(tmp_path / "bag"), "--latitude", "34"])
+    rc = replay.main([str(tmp_path / "bag"), "--latitude", "34", "--grade", "navigation"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1
     assert err[0].startswith(f"replay: error: cannot decode a {IMU} message at {ns} ns"), err

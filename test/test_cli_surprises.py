@@ -102,14 +102,15 @@ def test_replay_refuses_existing_outputs_unless_force(sim_bag, tmp_path, capsys)
     --force (each by a new complete one), never the input bag, never a directory for a file."""
     outs = {"--output": tmp_path / "out", "--csv": tmp_path / "a.csv",
             "--summary-json": tmp_path / "s.json", "--plot": tmp_path / "p.png"}
-    args = [sim_bag, "--latitude", 34, "--quiet"]
+    args = [sim_bag, "--latitude", 34, "--grade", "navigation", "--quiet"]
     for flag, p in outs.items():
         args += [flag, p]
     rc, _, err = cli(replay, args, capsys)
     assert rc == 0, err
     stamp = {p: p.stat().st_mtime_ns for p in outs.values()}
     for flag, p in outs.items():
-        rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--quiet", flag, p], capsys)
+        rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--grade", "navigation", "--quiet",
+                                  flag, p], capsys)
         one_error_line(rc, err, "replay", "--force")
     (outs["--csv"]).write_text("old\n")
     (outs["--summary-json"]).write_text("old\n")
@@ -121,11 +122,11 @@ def test_replay_refuses_existing_outputs_unless_force(sim_bag, tmp_path, capsys)
     assert all(p.stat().st_mtime_ns > stamp[p] for p in outs.values() if p.is_file())
     assert not [n for n in listing(tmp_path) if n.startswith(".")], listing(tmp_path)
     # never the input, never a directory in place of a file
-    rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--output", sim_bag, "--force"],
-                     capsys)
+    rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--grade", "navigation", "--output",
+                              sim_bag, "--force"], capsys)
     one_error_line(rc, err, "replay", "input bag")
-    rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--csv", outs["--output"], "--force"],
-                     capsys)
+    rc, _, err = cli(replay, [sim_bag, "--latitude", 34, "--grade", "navigation", "--csv",
+                              outs["--output"], "--force"], capsys)
     one_error_line(rc, err, "replay", "is a directory")
 
 
@@ -175,6 +176,7 @@ def test_sigterm_and_sighup_remove_partial_outputs_with_one_line(tool, sig, long
     argv = {"simulate": ["sins_align.tools.simulate", "--duration", "1e6", "out"],
             "import_imu": ["sins_align.tools.import_imu", str(long_inputs / "long.csv"), "out"],
             "replay": ["sins_align.tools.replay", str(long_inputs / "long_bag"), "--latitude", "34",
+                       "--grade", "navigation",
                        "--output", "out", "--csv", "out.csv"]}[tool]
     rc, out, err = _run_and_signal(argv, tmp_path, ".out*.partial-*", signum)
     assert rc == 128 + signum, (rc, out, err)
@@ -256,7 +258,8 @@ def test_rosbag2_outputs_named_like_ros1_bags_are_refused(sim_bag, tmp_path, cap
     before = listing(tmp_path)
     for mod, args in ((simulate, ["--duration", "1", tmp_path / "x.bag"]),
                       (import_imu, [csv, tmp_path / "x.bag"]),
-                      (replay, [sim_bag, "--latitude", 34, "--output", tmp_path / "x.BAG"])):
+                      (replay, [sim_bag, "--latitude", 34, "--grade", "navigation", "--output",
+                                tmp_path / "x.BAG"])):
         rc, _, err = cli(mod, args, capsys)
         one_error_line(rc, err, mod.PROG, "without .bag")
     assert listing(tmp_path) == before
@@ -264,7 +267,7 @@ def test_rosbag2_outputs_named_like_ros1_bags_are_refused(sim_bag, tmp_path, cap
     named.mkdir()
     for f in sim_bag.iterdir():
         (named / f.name).write_bytes(f.read_bytes())
-    rc, _, err = cli(replay, [named, "--latitude", 34], capsys)
+    rc, _, err = cli(replay, [named, "--latitude", 34, "--grade", "navigation"], capsys)
     one_error_line(rc, err, "replay", "rename it without .bag")
 
 
@@ -306,6 +309,6 @@ def test_replay_params_keyed_with_the_old_node_name_says_so(sim_bag, tmp_path, c
     y.write_text("sins_align:\n  ros__parameters:\n    latitude: 34.0\n")
     rc, _, err = cli(replay, [sim_bag, "--params", y], capsys)
     one_error_line(rc, err, "replay", "instead of 'sins_align:'")
-    y.write_text("/**/align_node:\n  ros__parameters:\n    latitude: 34.0\n")
+    y.write_text("/**/align_node:\n  ros__parameters:\n    latitude: 34.0\n    grade: navigation\n")
     rc, _, err = cli(replay, [sim_bag, "--params", y, "--quiet"], capsys)
     assert rc == 0, err

@@ -152,7 +152,7 @@ def test_corrupt_or_unusual_sqlite3_bags(tmp_path, capsys):
     bag = write_bag(tmp_path / "c", interleaved(0, 50))
     (bag / "c.db3").write_bytes(b"not a database" * 100)
     assert open_fast(bag) is None
-    rc = replay.main([str(bag), "--latitude", "34"])
+    rc = replay.main([str(bag), "--latitude", "34", "--grade", "navigation"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "cannot read bag" in err[0]
     odd = write_bag(tmp_path / "d", interleaved(0, 50))
@@ -329,7 +329,8 @@ def test_bad_data_in_fast_opened_bags_is_one_line_error(tmp_path, capsys):
             errors.append(str(e.value))
         assert errors[0] == errors[1] and str(b) in errors[0]
         js = tmp_path / f"{b.name}.json"
-        rc = replay.main([str(b), "--latitude", "34", "--summary-json", str(js)])
+        rc = replay.main([str(b), "--latitude", "34", "--grade", "navigation",
+                          "--summary-json", str(js)])
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and err == [f"replay: error: {errors[0]}"]
         assert not js.exists()

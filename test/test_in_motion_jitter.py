@@ -407,3 +407,31 @@ def test_a_tone_below_ten_hz_is_found_and_its_velocity_is_the_jitter():
     false = [fit_tones(t[100:], rng.normal(0.0, 0.3, (200, 3)), tn).omega.any()
              for _ in range(100)]
     assert np.mean(false) <= 0.05, np.mean(false)
+
+
+def test_tone_searches_kept_between_calls_change_nothing():
+    """fit_tones' ``kept``: the searches of the last windows kept for the next calls (a
+    VelocityJitter keeps its own: one search's window is, to the bit, the next search's
+    window before). Searches one second apart over a stream with a 5.3 Hz tone that comes
+    and goes and a vehicle's motion give the same Tones, to the bit, with and without it,
+    and the windows kept are taken again (fewer searches)."""
+    rng = np.random.default_rng(9)
+    dt = 0.01
+    t = np.arange(1, 1201) * dt
+    mid = t - 0.5 * dt
+    x = np.column_stack([0.3 + 0.8 * np.sin(2 * np.pi * 1.0 * mid)] * 6) \
+        + rng.normal(0.0, 0.05, (len(t), 6))
+    x[(mid > 4.0) & (mid < 9.0), 0] += 1.5 * np.sin(2 * np.pi * 5.3 * mid[(mid > 4.0)
+                                                                        & (mid < 9.0)])
+    kept: dict = {}
+    searched = []
+    for k in range(200, len(t), 100):                # every second, 2 s of samples
+        tw, xw, t0 = t[k - 200:k + 1], x[k - 200:k + 1], float(t[k])
+        before = dict(kept)
+        a = fit_tones(tw, xw, t0)
+        b = fit_tones(tw, xw, t0, kept=kept)
+        searched.append(sum(key not in before for key in kept))
+        for name in ("omega", "a", "b", "freq"):
+            np.testing.assert_array_equal(getattr(b, name), getattr(a, name), err_msg=name)
+    assert sum(searched) < 2 * len(searched) - 3, searched       # windows taken again
+    assert len(kept) <= 4

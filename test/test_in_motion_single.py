@@ -10,6 +10,8 @@ import pytest
 from sins_align.core.rotation import so3_exp
 from sins_align.core.strapdown import NavState
 from sins_align.estimators.in_motion import InvariantEKF, NoiseModel
+from sins_align.estimators.in_motion import filter as filter_module
+from sins_align.estimators.in_motion.filter import extra_size
 from sins_align.estimators.in_motion.feedback import LqrFeedback, lqr_gain
 
 NOISE = NoiseModel(1e-3, 1e-2, 1e-5, 1e-4)
@@ -135,3 +137,51 @@ def test_one_sample_steps_equal_the_pass_path(extra):
     _assert_same(a, b, 0, rtol=1e-14)
     _assert_same(a, c, 1)
     assert np.abs(a.bg[0]).max() > 1e-5
+
+
+@pytest.mark.parametrize("extra, lever, nhc_lever", [
+    ((), (0, 0, 0), (0, 0, 0)),
+    ((), (0.4, -0.2, 0.9), (-1.2, 0.1, -0.3)),
+    (("lever", "latency"), (0, 0, 0), (0, 0, 0)),
+    (("lever", "gyro_scale", "nhc_lever", "nhc_mount", "latency"), (0.4, -0.2, 0.9),
+     (-1.2, 0.1, -0.3)),
+])
+def test_float_models_of_one_filter_are_the_bank_arithmetic_bit_for_bit(extra, lever,
+                                                                         nhc_lever, monkeypatch):
+    """A bank of one filter computes its velocity model and non-holonomic update in Python
+    floats (filter.SINGLE_FLOATS): the same numbers, to the bit, as the bank's arithmetic on
+    that filter (the in-motion replay's outputs stay those of before), through runs and
+    velocity (with a latency, a vehicle's force and rate) and lateral (with and without
+    sideslip) updates."""
+    dt, gyro, accel = _samples(400, 21)
+    ends = list(range(10, 401, 10))
+    out = {}
+    for floats in (False, True):
+        monkeypatch.setattr(filter_module, "SINGLE_FLOATS", floats)
+        rng = np.random.default_rng(2)
+        st = NavState(so3_exp(rng.normal(0, 1, 3)), [8.0, -3.0, 0.5], 0.7, 2.0, 250.0)
+        n = 12 + extra_size(extra)
+        A = rng.normal(0, 1, (n, n))
+        e = InvariantEKF(st, 1e-3 * (A @ A.T) + 1e-2 * np.eye(n), NOISE, lever_arm=lever,
+                         extra=extra, nhc_lever_arm=nhc_lever)
+        e.latency = np.array([[0.05]])
+        models, nis = [], []
+        for r in e.propagate_runs(dt, gyro, accel, ends):
+            force = e.f_last + rng.normal(0, 0.5, (1, 3))
+            rate = e.w_last + rng.normal(0, 0.05, (1, 3))
+            models.append(e.velocity_model(force, rate))
+            z = e.v[0] + rng.normal(0, 0.3, 3)
+            nis.append(e.update_velocity(z, np.diag([0.04, 0.05, 0.06]), nis_limit=3.0,
+                                         force=force, rate=rate)[0])
+            nis.append(e.update_lateral(1, 0.1, nis_limit=2.0, slip=0.02 * (r % 2),
+                                        slip_updates=3.0)[0])
+        out[floats] = (models, nis, {k: getattr(e, k).copy() for k in STATES})
+    (m0, n0, s0), (m1, n1, s1) = out[False], out[True]
+    for (z0, H0), (z1, H1) in zip(m0, m1):
+        np.testing.assert_array_equal(z1, z0)
+        np.testing.assert_array_equal(H1, H0)
+    np.testing.assert_array_equal(np.array(n1), np.array(n0))
+    for k in STATES:
+        np.testing.assert_array_equal(s1[k], s0[k], err_msg=k)
+    # the updates moved the state: the comparison has teeth
+    assert np.abs(s1["bg"][0]).max() > 1e-4

@@ -299,7 +299,7 @@ def test_corrupt_chunk_is_rosbags_error(tmp_path, capsys):
     finally:
         r.close()
     assert tb.fast_messages == 300 and "CRC" in tb.fallback_reason
-    rc = replay.main([str(p), "--latitude", "34"])
+    rc = replay.main([str(p), "--latitude", "34", "--grade", "navigation"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "cannot read bag" in err[0]
 

@@ -185,7 +185,8 @@ def quiet(probe, tmp_path_factory):
     fix = probe.node.create_publisher(NavSatFix, f"{ns}/gnss/fix", RELIABLE)
     node = NodeProcess("align_node", [
         "-r", f"__ns:={ns}", "-r", f"__node:={name}", "-p", "latitude:=34.0",
-        "-p", "velocity_topic:=gnss/vel", "-p", "navsat_topic:=gnss/fix"], logs, name)
+        "-p", "grade:=navigation", "-p", "velocity_topic:=gnss/vel",
+        "-p", "navsat_topic:=gnss/fix"], logs, name)
     try:
         wait_until(lambda: (imu.get_subscription_count() > 0 and vel.get_subscription_count() > 0
                             and fix.get_subscription_count() > 0) or not node.alive(), 30.0,
@@ -279,7 +280,7 @@ def test_without_a_latitude_the_first_navsat_fix_gives_the_position(probe, tmp_p
     fix = probe.node.create_publisher(NavSatFix, f"{ns}/gnss/fix", RELIABLE)
     node = NodeProcess("align_node", [
         "-r", f"__ns:={ns}", "-r", f"__node:={name}", "-p", "velocity_topic:=gnss/vel",
-        "-p", "navsat_topic:=gnss/fix"], tmp_path, name)
+        "-p", "grade:=navigation", "-p", "navsat_topic:=gnss/fix"], tmp_path, name)
     status = f"{name}: alignment"
     try:
         wait_until(lambda: (imu.get_subscription_count() > 0 and fix.get_subscription_count()
@@ -330,6 +331,7 @@ def test_without_a_latitude_the_node_only_parameters_can_still_be_set(probe):
     node = align_node.make_node_class()(
         context=probe.context, namespace=f"/mnl_set_{RUN}",
         parameter_overrides=[Parameter("velocity_topic", value="gnss/vel"),
+                             Parameter("grade", value="navigation"),
                              Parameter("navsat_topic", value="gnss/fix")])
     try:
         res = node.set_parameters([Parameter("euler_rate", value=5.0)])
@@ -350,7 +352,7 @@ def test_without_a_latitude_the_node_only_parameters_can_still_be_set(probe):
 ], ids=["frame", "lever-arm", "navsat-alone", "type"])
 def test_bad_velocity_parameters_stop_the_node_with_one_line(args, reason, tmp_path):
     assert_refuses_start("align_node", ["-r", "__node:=align_bad_vel", "-p", "latitude:=34.0",
-                                        *args], reason, tmp_path)
+                                        "-p", "grade:=navigation", *args], reason, tmp_path)
 
 
 

@@ -80,7 +80,8 @@ def test_nodes_are_named_after_their_executables(probe, tmp_path):
     """`ros2 node list` shows align_node and imu_sim_node; `ros2 param list /align_node`
     works (the list_parameters service of that name answers)."""
     ns = f"/names_{RUN}"
-    node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34.0"], tmp_path, "align")
+    node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34.0", "-p", "grade:=navigation"],
+                  tmp_path, "align")
     sim = _start(["-r", f"__ns:={ns}", "-p", "wait_for_subscribers:=true"], tmp_path, "sim",
                  module="imu_sim_node")
     try:
@@ -163,8 +164,8 @@ def test_bad_ros_arguments_give_one_line_and_exit_2(module, ros_args, words, tmp
 ])
 def test_latitude_given_but_not_finite_is_not_called_missing(value, words, tmp_path):
     """-p latitude:=.nan says 'must be finite' (only an absent latitude is 'required')."""
-    p = NodeProcess("align_node", ["-r", f"__node:=lat_{RUN}", "-p", f"latitude:={value}"],
-                    tmp_path)
+    p = NodeProcess("align_node", ["-r", f"__node:=lat_{RUN}", "-p", f"latitude:={value}",
+                                   "-p", "grade:=navigation"], tmp_path)
     try:
         if words is None:
             time.sleep(3.0)
@@ -185,7 +186,8 @@ def test_an_integer_for_a_double_parameter_keeps_it_double(probe, tmp_path):
     refused with the type named, and the type stays double."""
     ns = f"/types_{RUN}"
     fqn = f"{ns}/align_node"
-    node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34", "-p", "euler_rate:=5",
+    node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34", "-p", "grade:=navigation",
+                   "-p", "euler_rate:=5",
                    "-p", "initial_rpy:=[0, 0, 180]"], tmp_path, "types")
     sim = None
     try:
@@ -237,7 +239,8 @@ def test_stopping_align_node_while_data_flows_is_clean(probe, tmp_path):
     euler = probe.subscribe(Vector3Stamped, f"{ns}/alignment/euler_deg", 50)
     try:
         for i, name in enumerate(STOP_SIGNALS):
-            node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34.0"], tmp_path, f"stop{i}")
+            node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34.0", "-p", "grade:=navigation"],
+                          tmp_path, f"stop{i}")
             try:
                 n0 = euler.count
                 # euler_deg flows only once samples do: the node is busy with data
@@ -275,7 +278,8 @@ def test_use_sim_time_timers_follow_clock_and_data_does_not(probe, tmp_path):
     euler = probe.subscribe(Vector3Stamped, f"{ns}/alignment/euler_deg", 50)
     diags = probe.subscribe(DiagnosticArray, "/diagnostics", 50, maxlen=200)
     clock_pub = probe.node.create_publisher(Clock, "/clock", 10)
-    node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34.0", "-p", "use_sim_time:=true"],
+    node = _start(["-r", f"__ns:={ns}", "-p", "latitude:=34.0", "-p", "grade:=navigation",
+                   "-p", "use_sim_time:=true"],
                   tmp_path, "simtime")
     sim = _start(["-r", f"__ns:={ns}", "-p", "rate:=50.0", "-p", "publish_truth:=false"],
                  tmp_path, "simtime_sim", module="imu_sim_node")

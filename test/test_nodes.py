@@ -74,7 +74,8 @@ def pair(probe, tmp_path_factory):
     truth = probe.subscribe(QuaternionStamped, f"{NS}/imu_sim/truth", RELIABLE_DEEP, maxlen=3000)
     node = NodeProcess("align_node", [
         "-r", f"__ns:={NS}", "-r", f"__node:={NODE}", "-p", "latitude:=34.0",
-        "-p", f"backtrack_time:={BACKTRACK}", "-p", "initial_rpy:=[89.0, 89.0, 179.0]"],
+        "-p", "grade:=navigation", "-p", f"backtrack_time:={BACKTRACK}",
+        "-p", "initial_rpy:=[89.0, 89.0, 179.0]"],
         logs, NODE)
     sim = None
     try:
@@ -151,7 +152,7 @@ def test_imu_data_orientation_matches_truth_within_published_covariance(pair, pr
 
     d = latest_diag(pair.diags, STATUS)
     limit = np.array([float(d[f"limit_{a}_deg"]) for a in ("east", "north", "up")]) * DEG
-    cfg = config_from_params({"latitude": 34.0})
+    cfg = config_from_params({"latitude": 34.0, "grade": "navigation"})
     bound = np.maximum(cfg.aligned_std_ratio * limit,
                        np.array([cfg.aligned_min_level_std_deg] * 2
                                 + [cfg.aligned_min_heading_std_deg]) * DEG)
@@ -317,10 +318,14 @@ def test_nodes_exit_cleanly_on_sigint(pair):
 # ---------------------------------------------------------------------------- startup errors
 @pytest.mark.parametrize("args, reason", [
     ([], "latitude is required"),
+    (["-p", "latitude:=34.0"], "grade is required"),
+    (["-p", "latitude:=34.0", "-p", "gyro_bias:=0.5", "-p", "gyro_arw:=0.01",
+      "-p", "accel_bias:=100.0"], "grade is required"),
     (["-p", "latitude:=95.0"], "latitude must be within [-90, 90]"),
     (["-p", "latitude:=34.0", "-p", "model:=kalman"], "model must be one of"),
     (["-p", "latitude:=34.0", "-p", "backtrack_time:=1.0"], "backtrack_time must be within"),
-], ids=["missing-latitude", "latitude-out-of-range", "bad-model", "backtrack-too-short"])
+], ids=["missing-latitude", "missing-grade", "three-specs-without-grade",
+        "latitude-out-of-range", "bad-model", "backtrack-too-short"])
 def test_bad_startup_parameters_exit_1_with_one_line(args, reason, tmp_path):
     """A bad or missing parameter: exit status 1 and one log line with the reason."""
     p = assert_refuses_start("align_node", ["-r", "__node:=align_bad_param", *args], reason,
@@ -330,7 +335,8 @@ def test_bad_startup_parameters_exit_1_with_one_line(args, reason, tmp_path):
 
 def test_align_yaml_lists_every_parameter_with_its_default():
     """config/align.yaml sets every parameter (node-only ones too) to its default, except the
-    example latitude; the values make a valid AlignConfig."""
+    two required ones it gives examples of (latitude, grade); the values make a valid
+    AlignConfig."""
     from pathlib import Path
 
     path = Path(sins_align.__file__).parent / "config" / "align.yaml"
@@ -339,10 +345,10 @@ def test_align_yaml_lists_every_parameter_with_its_default():
     assert {p.name for p in ALIGN_NODE_PARAMS} == {p.name for p in PARAMS} | {"euler_rate",
                                                                             "queue_size"}
     for p in ALIGN_NODE_PARAMS:
-        if p.name != "latitude":
+        if p.name not in ("latitude", "grade"):
             assert values[p.name] == p.default, (p.name, values[p.name], p.default)
             assert check_param(p.name, values[p.name], p.scope) is None, p.name
-    assert math.isfinite(values["latitude"])
+    assert math.isfinite(values["latitude"]) and values["grade"] == "consumer"
     config_from_params({p.name: values[p.name] for p in PARAMS})
 
 
@@ -361,7 +367,8 @@ def bad(probe, tmp_path):
     out = probe.subscribe(Imu, f"{ns}/imu/data", RELIABLE_DEEP)
     node = NodeProcess("align_node", [
         "-r", f"__ns:={ns}", "-r", f"__node:={name}", "-p", "latitude:=34.0",
-        "-p", f"rate:={RATE}", "-p", "units_check_window:=5.0"], tmp_path, name)
+        "-p", "grade:=navigation", "-p", f"rate:={RATE}", "-p", "units_check_window:=5.0"],
+        tmp_path, name)
     pub = probe.node.create_publisher(Imu, f"{ns}/imu/data_raw", qos_profile_sensor_data)
     try:
         wait_until(lambda: (pub.get_subscription_count() > 0
@@ -547,6 +554,7 @@ def test_ros_time_jumping_back_restarts_the_alignment(probe):
     node = align_node.make_node_class()(
         context=probe.context, namespace=f"/jump_{RUN}",
         parameter_overrides=[Parameter("latitude", value=34.0),
+                             Parameter("grade", value="navigation"),
                              Parameter("use_sim_time", value=True)])
     probe.executor.add_node(node)
     pub = probe.node.create_publisher(Imu, f"/jump_{RUN}/imu/data_raw", qos_profile_sensor_data)
@@ -587,7 +595,9 @@ def test_queue_size_sets_the_imu_history_depth_in_and_out(probe):
 
     node = align_node.make_node_class()(
         context=probe.context, namespace=f"/depth_{RUN}",
-        parameter_overrides=[Parameter("latitude", value=34.0), Parameter("queue_size", value=321)])
+        parameter_overrides=[Parameter("latitude", value=34.0),
+                             Parameter("grade", value="navigation"),
+                             Parameter("queue_size", value=321)])
     try:
         assert node.sub.qos_profile.depth == node.pub_imu.qos_profile.depth == 321
         assert node.sub.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
@@ -614,6 +624,7 @@ def test_raw_path_publishes_what_the_message_path_publishes(probe):
         node = align_node.make_node_class()(
             context=probe.context, namespace=f"/{path}_path_{RUN}",
             parameter_overrides=[Parameter("latitude", value=34.0),
+                                 Parameter("grade", value="navigation"),
                                  Parameter("rate", value=RATE),
                                  Parameter("backtrack_time", value=5.0)])
         node.pub_imu, node.pub_aligned = _Published(), _Published()

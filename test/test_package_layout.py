@@ -182,7 +182,8 @@ def test_installed_replay_runs_on_the_installed_real_bag(install_dir, tmp_path):
     """`ros2 run sins_align replay` on the installed real-data bag (what the README shows)
     uses all 30,000 samples, aligns, and gives exactly what the source tree's replay gives
     on the repository's bags/lasergyro_300s."""
-    args = ['--latitude', '34.246048', '--height', '380', '--quiet', '--summary-json']
+    args = ['--latitude', '34.246048', '--height', '380', '--grade', 'navigation', '--quiet',
+            '--summary-json']
     runs = {'installed': ([str(install_dir / 'lib' / PKG / 'replay'),
                            str(install_dir / 'share' / PKG / 'bags' / 'lasergyro_300s')],
                           installed_env(install_dir)),

@@ -30,6 +30,7 @@ RELIABLE = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE,
 PARAMS = """/**:
   ros__parameters:
     latitude: 34.0
+    grade: navigation
     backtrack_time: 20.0
     initial_rpy: [60.0, -45.0, 170.0]
 """

@@ -132,6 +132,7 @@ def test_the_node_parameters_carry_the_instability():
     from sins_align.ros.params import check_param, config_from_params, defaults, sensor_specs
 
     v = defaults()
+    v["grade"] = "navigation"
     assert sensor_specs(v) == NAV
     v.update(latitude=34.0, gyro_bias_instability=0.003, accel_bias_instability=30.0,
              bias_correlation_time=300.0)
@@ -148,6 +149,11 @@ def test_the_node_parameters_carry_the_instability():
     assert (sp.gyro_warmup, sp.accel_warmup, sp.warmup_time) == pytest.approx(
         (0.03 * DPH, 300.0 * UG, 120.0))
     assert check_param("warmup_time", 0.0) is not None
+    v.update(grade="", gyro_bias=0.01, gyro_arw=0.001, accel_bias=100.0, accel_vrw=10.0)
+    sp = sensor_specs(v)                         # no grade: the four and the extras
+    assert sp.accel_bias_instability == pytest.approx(30.0 * UG) and sp.warmup_time == 120.0
+    with pytest.raises(ValueError):
+        sensor_specs({**v, "gyro_arw": -1.0})    # the four are still required
 
 
 # ------------------------------------------------------------------ in motion

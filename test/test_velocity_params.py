@@ -22,7 +22,7 @@ from sins_align.estimators.quasi_static import AlignConfig, Aligner
 from sins_align.ros import params as P
 from sins_align.tools import replay, simulate
 
-BASE = {"latitude": 34.0}
+BASE = {"latitude": 34.0, "grade": "navigation"}
 
 
 # ---------------------------------------------------------------- the schema
@@ -201,7 +201,7 @@ def test_replay_velocity_flags_are_parsed_by_argparse(args, words, imu_bag, tmp_
     out = tmp_path / "out"
     out.mkdir()
     with pytest.raises(SystemExit) as e:
-        replay.main([str(imu_bag), "--latitude", "34", *args,
+        replay.main([str(imu_bag), "--latitude", "34", "--grade", "navigation", *args,
                      "--summary-json", str(out / "s.json")])
     err = capsys.readouterr().err
     assert e.value.code == 2
@@ -222,7 +222,7 @@ def test_replay_velocity_flags_are_parsed_by_argparse(args, words, imu_bag, tmp_
 def test_replay_refuses_bad_velocity_flags_in_one_line(args, words, imu_bag, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
-    rc, _, err = cli(replay, [imu_bag, "--latitude", "34", *args,
+    rc, _, err = cli(replay, [imu_bag, "--latitude", "34", "--grade", "navigation", *args,
                               "--summary-json", out / "s.json", "--csv", out / "s.csv"], capsys)
     _refused(rc, err, words, out)
 
@@ -230,8 +230,8 @@ def test_replay_refuses_bad_velocity_flags_in_one_line(args, words, imu_bag, tmp
 def test_a_missing_velocity_topic_names_the_bag_topics(imu_bag, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
-    rc, _, err = cli(replay, [imu_bag, "--latitude", "34", "--velocity-topic", "/vel",
-                              "--output", out / "bag"], capsys)
+    rc, _, err = cli(replay, [imu_bag, "--latitude", "34", "--grade", "navigation",
+                              "--velocity-topic", "/vel", "--output", out / "bag"], capsys)
     _refused(rc, err, "(topics: /imu/data_raw (sensor_msgs/msg/Imu), /imu_sim/truth "
              "(geometry_msgs/msg/QuaternionStamped); choose it with --velocity-topic)", out)
 
@@ -241,7 +241,7 @@ def test_a_relative_velocity_topic_in_the_params_file_is_resolved_at_root(imu_ba
     """The node's relative name gnss/fix_velocity is /gnss/fix_velocity in a bag recorded at
     root; replay looks for that, and --velocity-topic '' turns the reference off again."""
     y = tmp_path / "p.yaml"
-    y.write_text("/**:\n  ros__parameters:\n    latitude: 34.0\n"
+    y.write_text("/**:\n  ros__parameters:\n    latitude: 34.0\n    grade: navigation\n"
                  "    velocity_topic: gnss/fix_velocity\n")
     out = tmp_path / "out"
     out.mkdir()

@@ -71,7 +71,7 @@ REASON_TEXT = {
     "rates_look_like_deg_per_s": "gyro and accelerometer tilt disagree beyond the gyro "
                                  "specs: angular_velocity looks like deg/s (REP-145 wants "
                                  "rad/s), or the gyro is far worse than the configured "
-                                 "grade (a MEMS as 'navigation', the default: set grade, "
+                                 "grade (a MEMS as 'navigation' or 'tactical': set grade, "
                                  "gyro_bias)",
     "undecodable": "the message bytes are not a valid sensor_msgs/Imu",
 }
@@ -134,6 +134,8 @@ def make_node_class():
                     self.reference = velocity_reference(values)
                 except ValueError as e:
                     reason = str(e)
+                    if reason.startswith("grade is required"):
+                        reason += " (-p grade:=<name>)"
                     if reason == "latitude is required":
                         reason += (" (give the IMU's geodetic latitude in deg: -p "
                                    "latitude:=<deg>; in motion a navsat_topic can give it)")

@@ -178,7 +178,8 @@ def main(args: list[str] | None = None) -> int:
     ok = False
     try:
         children.append(_Child("align_node", [
-            "-p", f"latitude:={a.latitude}", "-p", f"initial_rpy:={_p(a.initial_rpy)}",
+            "-p", f"latitude:={a.latitude}", "-p", "grade:=navigation",
+            "-p", f"initial_rpy:={_p(a.initial_rpy)}",
             "-p", f"rate:={a.rate}"], log_dir, env))
         t_wall = time.monotonic()
         while mon.aligned is None:       # the latched 'false' says the node is up

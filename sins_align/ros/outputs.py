@@ -92,7 +92,13 @@ def diagnostic_status(al: Aligner, input_rate_hz: float | None = None
     std = al.std_enu_deg
     lim = al.limit_std_deg
     msg = STATE_TEXT[st]
-    if not al.heading_observable:
+    ratio = al.gyro_noise_ratio
+    if not al.specs_consistent:
+        msg = (f"the gyro's white noise is {ratio:.0f} x the configured gyro_arw: the IMU is "
+               f"worse than its grade, so its biases cannot be trusted either; attitude "
+               f"published as unknown: set grade (tactical, or consumer for a MEMS IMU) or "
+               f"the four specs, and restart")
+    elif not al.heading_observable:
         msg += " (level only: heading unobservable with this gyro grade / latitude)"
     values = [
         ("state", st),
@@ -110,6 +116,8 @@ def diagnostic_status(al: Aligner, input_rate_hz: float | None = None
         ("samples_rejected", str(sum(al.rejected.values()))),
         ("last_reject_reason", al.last_reject or ""),
         ("nis", f"{al.nis:.3f}"),
+        ("specs_consistent", str(bool(al.specs_consistent)).lower()),
+        ("gyro_noise_ratio", "" if ratio is None else f"{ratio:.2f}"),
         ("input_rate_hz", "" if input_rate_hz is None else f"{input_rate_hz:.2f}"),
     ]
     values += [(f"rejected_{k}", str(v)) for k, v in sorted(al.rejected.items())]

@@ -19,7 +19,7 @@ from typing import Any, Callable
 from sins_align.estimators.quasi_static import AlignConfig
 from sins_align.io.velocity import VELOCITY_FRAMES, VELOCITY_TYPES
 from sins_align.core.models import MODELS
-from sins_align.core.specs import DPH, DPSH, GRADES, UG, UG_PSHZ, grade_specs
+from sins_align.core.specs import DPH, DPSH, GRADES, UG, UG_PSHZ, SensorSpecs, grade_specs
 from sins_align.sim.simulator import SWAY_PRESETS
 from sins_align.sim.trajectory import PRESETS as TRAJECTORY_PRESETS
 
@@ -135,8 +135,12 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("initial_rpy", [0.0, 0.0, 0.0], "Initial REP-103 roll, pitch, yaw of the IMU frame "
               "in ENU, deg. Any value converges; it only shortens the transient.",
               allow_empty=True),
-    ParamSpec("grade", "navigation", "Sensor grade preset for the specs below: navigation, "
-              "tactical or consumer.", choices=tuple(GRADES)),
+    ParamSpec("grade", "", "Sensor grade preset for the specs below: navigation (0.01 deg/h, "
+              "100 ug), tactical (1 deg/h, 1 mg) or consumer (MEMS: 0.1 deg/s, 5 mg; level "
+              "only). Required unless gyro_bias, gyro_arw, accel_bias and accel_vrw are all "
+              "given: the data cannot tell a grade's biases, and an IMU run as a better grade "
+              "than it is gets a covariance that lies.", choices=tuple(GRADES),
+              allow_empty=True),
     ParamSpec("gyro_bias", -1.0, "Gyro bias 1-sigma, deg/h (-1 = from grade).", -1.0, 1e6),
     ParamSpec("gyro_arw", -1.0, "Gyro angle random walk, deg/sqrt(h) (-1 = from grade).",
               -1.0, 1e6),
@@ -276,7 +280,8 @@ SIM_PARAMS: tuple[ParamSpec, ...] = _scoped(
     PARAMS_BY_NAME["height"],
     ParamSpec("rpy", [0.0, 0.0, 0.0], "True mean attitude: REP-103 roll, pitch, yaw of the IMU "
               "frame in ENU, deg."),
-    replace(PARAMS_BY_NAME["grade"], description="Sensor grade preset."),
+    replace(PARAMS_BY_NAME["grade"], default="navigation", allow_empty=False,
+            description="Sensor grade preset of the simulated IMU."),
     *(PARAMS_BY_NAME[n] for n in ("gyro_bias", "gyro_arw", "accel_bias", "accel_vrw",
                                   "gyro_bias_instability", "accel_bias_instability",
                                   "bias_correlation_time", "gyro_warmup", "accel_warmup",
@@ -327,10 +332,18 @@ _TO_CONFIG = {
     "aligned_min_heading_std": "aligned_min_heading_std_deg",
     "heading_max_limit_std": "heading_max_limit_std_deg", "disturbance_nis": "disturbance_nis",
 }
-_SPEC_UNITS = {"gyro_bias": DPH, "gyro_arw": DPSH, "accel_bias": UG, "accel_vrw": UG_PSHZ,
-               "gyro_bias_instability": DPH, "accel_bias_instability": UG,
-               "bias_correlation_time": 1.0, "gyro_warmup": DPH, "accel_warmup": UG,
-               "warmup_time": 1.0}
+_SPEC_UNITS = {"gyro_bias": DPH, "gyro_arw": DPSH, "accel_bias": UG, "accel_vrw": UG_PSHZ}
+#: The optional figures: -1 (or absent) = the grade's, or the SensorSpecs default (none,
+#: 300 s) without a grade.
+_EXTRA_SPEC_UNITS = {"gyro_bias_instability": DPH, "accel_bias_instability": UG,
+                     "bias_correlation_time": 1.0, "gyro_warmup": DPH, "accel_warmup": UG,
+                     "warmup_time": 1.0}
+
+#: Why a configuration without a grade is refused (one line).
+GRADE_REQUIRED = ("grade is required: navigation (0.01 deg/h gyro), tactical (1 deg/h) or "
+                  "consumer (a MEMS IMU: level only), or all four of gyro_bias, gyro_arw, "
+                  "accel_bias, accel_vrw; a grade better than the IMU's makes the published "
+                  "covariance lie")
 
 
 def param_spec(name: str, scope: str = "align") -> ParamSpec | None:
@@ -400,11 +413,17 @@ def defaults() -> dict[str, Any]:
 
 def sensor_specs(values: dict[str, Any]):
     """The :class:`~sins_align.core.specs.SensorSpecs` of parameter values: the ``grade``
-    preset with ``gyro_bias``, ``gyro_arw``, ``accel_bias``, ``accel_vrw``, the bias
-    instabilities, the warm-ups and their times where >= 0 (absent = from the grade)."""
+    preset with ``gyro_bias``, ``gyro_arw``, ``accel_bias``, ``accel_vrw`` where >= 0 (all
+    four without a grade), and the bias instabilities, the warm-ups and their times where
+    >= 0 (absent = from the grade)."""
+    over = {k: float(values[k]) * unit for k, unit in _SPEC_UNITS.items() if values[k] >= 0.0}
+    over.update({k: float(values[k]) * unit for k, unit in _EXTRA_SPEC_UNITS.items()
+                 if values.get(k, -1.0) >= 0.0})
+    if not values["grade"]:
+        if not all(k in over for k in _SPEC_UNITS):
+            raise ValueError(GRADE_REQUIRED)
+        return SensorSpecs(**over)
     specs = grade_specs(values["grade"])
-    over = {k: float(values[k]) * unit for k, unit in _SPEC_UNITS.items()
-            if values.get(k, -1.0) >= 0.0}
     return specs.with_(**over) if over else specs
 
 
@@ -448,6 +467,8 @@ def checked_values(values: dict[str, Any]) -> dict[str, Any]:
         raise ValueError("navsat_topic needs a velocity_topic (only the in-motion alignment "
                          "takes positions; without one the latitude and height parameters "
                          "are used)")
+    if not merged["grade"] and any(merged[k] < 0.0 for k in _SPEC_UNITS):
+        raise ValueError(GRADE_REQUIRED)
     return merged
 
 

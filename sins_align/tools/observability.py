@@ -5,7 +5,7 @@ Usage::
     python -m sins_align.observability --scenario {static,forward,turn} [--window S]
         [--velocity-noise M/S] [--level-std DEG] [--heading-std DEG] [--grade NAME]
         [--lever-states] [--json OUT] [--plot OUT.png] [--force] [--quiet]
-    python -m sins_align.observability BAG --latitude DEG --velocity-topic TOPIC
+    python -m sins_align.observability BAG --latitude DEG --grade NAME --velocity-topic TOPIC
         [--topic IMU] [--velocity-type T] [--velocity-frame F] [--navsat-topic T]
         (--latitude may be left out with --navsat-topic: the first fix gives it)
         [--lever-arm X Y Z] [--report S] ... (the same analysis options)
@@ -76,8 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="prior std of roll/pitch error (default 1)")
     a.add_argument("--heading-std", type=float, default=10.0, metavar="DEG",
                    help="prior std of the heading error (default 10)")
-    a.add_argument("--grade", help="bias priors: navigation, tactical or consumer (default: "
-                   "seed 001's 100 ug accelerometer with a 10 deg/h gyro)")
+    a.add_argument("--grade", help="bias priors and, on a bag, the estimator's specs: "
+                   "navigation, tactical or consumer (required on a bag, as for replay; "
+                   "scenarios default to seed 001's 100 ug accelerometer with a 10 deg/h "
+                   "gyro)")
     a.add_argument("--lever-states", action="store_true", help="add the lever-arm errors")
     a.add_argument("--lever-std", type=float, default=0.1, metavar="M",
                    help="prior std of the lever-arm error (default 0.1)")

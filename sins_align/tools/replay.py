@@ -109,9 +109,10 @@ from sins_align.ros.outputs import (StampClock, bias_estimates, euler_deg, imu_o
                                     imu_output_values, imu_sample, motion_diagnostics,
                                     node_diagnostics)
 from sins_align.io.velocity import NAVSAT_TYPE, VELOCITY_FRAMES, VELOCITY_TYPES
-from sins_align.ros.params import (NODE_NAME, NODE_PARAMS, VEHICLES, VelocityReference,
-                                   check_param, defaults, estimator_config, load_params_yaml,
-                                   make_estimator, param_spec, velocity_reference)
+from sins_align.ros.params import (GRADE_REQUIRED, NODE_NAME, NODE_PARAMS, VEHICLES,
+                                   VelocityReference, check_param, defaults, estimator_config,
+                                   load_params_yaml, make_estimator, param_spec,
+                                   velocity_reference)
 from sins_align.ros.reference import VELOCITY_SILENCE, ReferenceFeed
 from sins_align.core.rotation import (attitude_error, dcm_from_quat, heading_from_dcm,
                                      quat_from_dcm, rpy_from_dcm, so3_exp, so3_log)
@@ -152,7 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "here or in --params; in motion --navsat-topic can give it)")
     p.add_argument("--height", type=float, metavar="M", help="height above the ellipsoid, m")
     p.add_argument("--model", help="error model: constant, conventional or se3")
-    p.add_argument("--grade", help="sensor grade preset: navigation, tactical or consumer")
+    p.add_argument("--grade", help="sensor grade preset: navigation, tactical or consumer (a "
+                   "MEMS IMU); required, here or in --params, unless the four specs are given")
     p.add_argument("--initial-rpy", type=float, nargs=3, metavar=("ROLL", "PITCH", "YAW"),
                    help="initial REP-103 attitude of the IMU frame in ENU, deg")
     p.add_argument("--params", metavar="YAML", help="align_node parameter file "
@@ -248,6 +250,11 @@ def config_or_error(values: dict[str, Any]):
     try:
         return estimator_config(values)
     except ValueError as e:
+        if str(e) == GRADE_REQUIRED:
+            raise CliError("grade is required: pass --grade navigation|tactical|consumer (a "
+                           "MEMS IMU: consumer), or give grade or the four specs in a "
+                           "parameters file; a grade better than the IMU's makes the "
+                           "published covariance lie") from None
         raise CliError(f"bad parameters: {one_line(e)}") from None
 
 
@@ -939,6 +946,7 @@ class ReplaySession:
             "limit_std_enu_deg": s.get("limit_std_enu_deg"),
             "fine_velocity_noise_mps": s.get("fine_velocity_noise_mps"),
             "nis": s.get("nis"),
+            "gyro_noise_ratio": s.get("gyro_noise_ratio"),
         }
         if self._has_biases:
             bg, ba = bias_estimates(al)
@@ -1368,7 +1376,7 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
         (f"  config    latitude {c['latitude_deg']:.6f} deg, height {c['height_m']:g} m, "
          if c['latitude_deg'] is not None and math.isfinite(c['latitude_deg']) else
          f"  config    position from {ref['navsat_topic']}, ")
-        + f"{estimator}, grade {c['grade']}",
+        + f"{estimator}, " + (f"grade {c['grade']}" if c["grade"] else "specs as given"),
         f"  samples   {s['samples']}{used}, rejected: {rej}",
     ]
     if ref is not None:

@@ -275,7 +275,7 @@ def trial(rate: float, duration: float, backtrack: float | None, env: dict) -> d
     cmd = ([sys.executable, __file__, "--floor-node"] if backtrack is None else
            [sys.executable, "-m", "sins_align.ros.align_node", "--ros-args", "-r",
             f"__ns:={NS}", "-r", "__node:=bench_align", "-p", "latitude:=34.0", "-p",
-            f"rate:={rate}", "-p", f"backtrack_time:={backtrack}"])
+            "grade:=navigation", "-p", f"rate:={rate}", "-p", f"backtrack_time:={backtrack}"])
     node = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)
     pub = subprocess.Popen([sys.executable, __file__, "--publish", str(rate), str(duration)],

@@ -89,8 +89,8 @@ def fresh_replay(bag: Path, out: Path, extra=()) -> tuple[float, float]:
     shutil.rmtree(out / "fresh_out", ignore_errors=True)
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "sins_align.tools.replay", str(bag), "--latitude",
-                    "34", "--summary-json", str(js), "--quiet",
+    subprocess.run([sys.executable, "-m", "sins_align.tools.replay", str(bag), "--grade",
+                    "navigation", "--latitude", "34", "--summary-json", str(js), "--quiet",
                     *[a.format(d=out) for a in extra]], check=True, env=env)
     wall = time.perf_counter() - t0
     return json.loads(js.read_text())["messages_per_s"], wall
@@ -138,7 +138,8 @@ def main() -> int:
         def run_replay(extra=()):
             k[0] += 1
             js = d / f"summary{k[0]}.json"
-            rc = replay.main([str(bag), "--latitude", "34", "--summary-json", str(js), "--quiet",
+            rc = replay.main([str(bag), "--latitude", "34", "--grade", "navigation",
+                              "--summary-json", str(js), "--quiet",
                               *[a.format(i=k[0], d=d) for a in extra]])
             assert rc == 0
             return json.loads(js.read_text())
@@ -165,8 +166,8 @@ def main() -> int:
             SHARED_SCHEDULES.clear()
             k[0] += 1
             js = d / f"plain{k[0]}.json"
-            assert replay.main([str(plain), "--latitude", "34", "--summary-json", str(js),
-                                "--quiet"]) == 0
+            assert replay.main([str(plain), "--latitude", "34", "--grade", "navigation",
+                                "--summary-json", str(js), "--quiet"]) == 0
             assert json.loads(js.read_text())["final"] == summary0["final"]
 
         summary0 = run_replay()

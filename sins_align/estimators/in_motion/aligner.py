@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import operator
 from collections import Counter, deque
 from collections.abc import Callable
 
@@ -89,6 +90,8 @@ _HISTORY_MARGIN = 0.2
 #: events of the updates a rewind re-applies: the snapshots keep their counts
 _REPLAYED_EVENTS = ("velocity", "velocity_inflated", "velocity_parked", "attitude", "nhc",
                     "nhc_parked", "hypotheses_merged", "heading_acquired", "velocity_step")
+#: the counts of _REPLAYED_EVENTS in a Counter, as a tuple (0 for those not counted yet)
+_replayed_counts = operator.itemgetter(*_REPLAYED_EVENTS)
 #: s: the velocity updates whose innovations are summed to look for a step in the
 #: reference's error (:meth:`MotionAligner._step_check`)
 STEP_WINDOW = 1.0
@@ -142,6 +145,13 @@ class MotionAligner(EventSource, AttitudeReadout):
         self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a)
         # (velocity_noise > 0 is checked by the config: valid whatever is measured)
         self._default_R = np.eye(3) * config.velocity_noise ** 2
+        # its whitening (_whitened): 1 / sqrt of the diagonal and that one's outer product
+        a = 1.0 / np.sqrt(self._default_R.diagonal())
+        self._default_white = (a, np.outer(a, a))
+        self._jitter_any = (None, False)         # (a jitter covariance, whether nonzero)
+        # (the bank's attitudes, the best one's row, each one's attitude_error from it) as
+        # _weigh left them, for the covariance after it
+        self._bank_errors: tuple | None = None
         self.rejected: Counter = Counter()
         self.events: Counter = Counter()
         self._listeners: list[Callable[[AlignmentEvent], None]] = []
@@ -236,7 +246,9 @@ class MotionAligner(EventSource, AttitudeReadout):
         if ekf.K == 1:
             Ce = ekf.C[0]
             cov = Ce @ ekf.P[0, IPHI, IPHI] @ Ce.T
-            if jit.any():
+            if self._jitter_any[0] is not jit:    # (a new array at each of its windows)
+                self._jitter_any = (jit, bool(jit.any()))
+            if self._jitter_any[1]:
                 C = ekf.corrected_dcms()[0]
                 cov = cov + C @ jit @ C.T
             return cov
@@ -248,7 +260,11 @@ class MotionAligner(EventSource, AttitudeReadout):
         # hypothesis' error carried to the best one's attitude, d away (the inverse left
         # Jacobian at d: up to 1.57 x on the level axes of one 180 deg off in heading)
         w = np.exp(self._logw)
-        d = attitude_error(Cs, Cs[self._best][None])                     # (K, 3), ENU
+        known = self._bank_errors
+        if known is not None and known[0] is Cs and known[1] == self._best:
+            d = known[2]
+        else:
+            d = attitude_error(Cs, Cs[self._best][None])                 # (K, 3), ENU
         J = so3_left_jacobian_inv(d)
         covs = J @ covs @ np.swapaxes(J, -1, -2)
         return np.einsum("k,kij->ij", w, covs + d[:, :, None] * d[:, None, :]) + jitter
@@ -777,7 +793,7 @@ class MotionAligner(EventSource, AttitudeReadout):
                 q += 1
             if q < len(fills):
                 t_ev = min(t_ev, fills[q])
-            e = n if t_ev > t[-1] else min(max(int(np.searchsorted(t, t_ev, "left")) + 1,
+            e = n if t_ev > t[-1] else min(max(int(t.searchsorted(t_ev, "left")) + 1,
                                                k + 1), n)
             ends.append(e)
             t_now = float(t[e - 1])
@@ -810,6 +826,12 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self._next_nhc = t_now + c.nhc_period
             if e < n:
                 self._snapshot(t_now)
+                # (a long block: the stored states no rewind can reach any more go now,
+                # not all at its end; _prune does the rest)
+                snaps = self._snaps
+                keep = t_now - c.max_measurement_lag - _HISTORY_MARGIN
+                while len(snaps) > 1 and snaps[1][0] < keep:
+                    snaps.popleft()
 
     def _apply(self, item, t_now):
         ts, _, kind, payload = item
@@ -872,9 +894,11 @@ class MotionAligner(EventSource, AttitudeReadout):
             if nis[self._best] > self.config.nis_inflate:
                 self.events["velocity_inflated"] += 1
             ok = np.isfinite(payload[0])
-            d = int(ok.sum())
+            d = int(np.count_nonzero(ok))
             yw, M = _whitened(*ekf.last_innovation(self._best),
-                              R if d == 3 else R[np.ix_(ok, ok)], s)
+                              R if d == 3 else R[np.ix_(ok, ok)], s,
+                              self._default_white if R is self._default_R and d == 3
+                              else None)
             # y^T (H P H^T + R)^-1 y: the NIS as computed when R was not scaled
             r = (float(nis[self._best]) * d if s == 1.0
                  else float(yw @ np.linalg.solve(M + np.eye(d), yw)))
@@ -1008,8 +1032,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         if ekf.K > 1:
             return
         sp = self.config.specs
-        zg = float(np.abs(ekf.bg[0]).max()) / sp.gyro_bias if sp.gyro_bias > 0.0 else 0.0
-        za = float(np.abs(ekf.ba[0]).max()) / sp.accel_bias if sp.accel_bias > 0.0 else 0.0
+        zg = _abs_max(ekf.bg[0].tolist()) / sp.gyro_bias if sp.gyro_bias > 0.0 else 0.0
+        za = _abs_max(ekf.ba[0].tolist()) / sp.accel_bias if sp.accel_bias > 0.0 else 0.0
         g0, a0 = self.bias_spec_ratio
         self.bias_spec_ratio = (max(g0, zg), max(a0, za))
         if self.specs_consistent and max(zg, za) >= BIAS_BEYOND_SPEC:
@@ -1077,12 +1101,14 @@ class MotionAligner(EventSource, AttitudeReadout):
         # left converges from below
         s_max = c.inconsistent_nis
         s = 1.0
+        add = np.add.reduce                     # (ndarray.sum without its wrapper)
         for _ in range(50):
-            q = cs / (lam + s)
-            g = float(q.sum()) - d
+            den = lam + s
+            q = cs / den
+            g = float(add(q, axis=None)) - d
             if g <= 1e-7 * d:
                 break
-            s_new = s + g / float((q / (lam + s)).sum())
+            s_new = s + g / float(add(q / den, axis=None))
             if s_new >= s_max:
                 return float(s_max)
             if s_new - s <= 1e-7 * s:
@@ -1103,7 +1129,8 @@ class MotionAligner(EventSource, AttitudeReadout):
             # its own attitude uncertainty on every axis
             # (once the best one has learnt something: its heading std a third of the prior)
             d = attitude_error(self.ekf.C, self.ekf.C[best][None])
-            sd = np.sqrt(np.diag(self.ekf.covariance_enu[best]))
+            Cb = self.ekf.C[best]                # (covariance_enu of the best one alone)
+            sd = np.sqrt(np.diag(Cb @ self.ekf.P[best, IPHI, IPHI] @ Cb.T))
             same = np.all(np.abs(d) <= 3.0 * sd, axis=1) & (sd[2] <= self._prior_head_std / 3.0)
             same[best] = False
             if same.any():
@@ -1125,8 +1152,12 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self.ekf.select(keep)
                 lw, nis = lw[keep], nis[keep]
                 lw -= math.log(np.exp(lw).sum())
+                d = d[keep]
+                best = int(keep[:best].sum())
             self._logw = lw
             self._best = int(np.argmax(lw))
+            # (row by row: the same as attitude_error of the rows kept)
+            self._bank_errors = (self.ekf.C, best, d) if self._best == best else None
         nis = float(nis[self._best])
         self._nis_add(t, nis, dof, nis if nis_ref is None else nis_ref)
 
@@ -1161,7 +1192,7 @@ class MotionAligner(EventSource, AttitudeReadout):
 
     def _snap_now(self, t):
         self._snaps.append((t, self.ekf.snapshot(), self._next_nhc, self._logw.copy(),
-                            self._best, tuple(self.events[k] for k in _REPLAYED_EVENTS),
+                            self._best, _replayed_counts(self.events),
                             self._step_mode))
 
     def _prune(self):
@@ -1190,7 +1221,9 @@ class MotionAligner(EventSource, AttitudeReadout):
                 + c.inconsistent_memory
         t_now = stamp if stamp is not None else self.t_last
         self.reference_consistent = bool(t_now is None or t_now > self._inconsistent_until)
-        std = self.std_enu_deg
+        # (std_enu_deg in floats: NaN where a variance is negative, as numpy's square root)
+        std = [math.sqrt(x) / DEG if x >= 0.0 else math.nan
+               for x in self.covariance.diagonal().tolist()]
         self.heading_observable = bool(std[2] <= c.observable_heading_std_deg)
         now = bool(self.heading_observable and self.ekf.K == 1 and self.reference_consistent
                    and self.specs_consistent
@@ -1252,10 +1285,19 @@ def _fl(x):
     return x if math.isfinite(x) else None
 
 
-def _whitened(y, S, R, s):
+def _abs_max(xs) -> float:
+    """numpy's ``np.abs(x).max()`` of a few floats (NaN if any is NaN)."""
+    a = [abs(x) for x in xs]
+    return math.nan if any(x != x for x in a) else max(a)
+
+
+def _whitened(y, S, R, s, white=None):
     """An innovation y (d,) of covariance S = H P H^T + s R, whitened by R as given:
     (L^-1 y, L^-1 H P H^T L^-T) with R = L L^T: y^T (H P H^T + x R)^-1 y is
-    yw^T (M + x I)^-1 yw for every x."""
+    yw^T (M + x I)^-1 yw for every x. ``white``: (1 / sqrt(diag R), its outer product) of a
+    diagonal R, computed before."""
+    if white is not None:
+        return white[0] * y, (S - s * R) * white[1]
     r = R.diagonal()
     if not np.any(R - np.diag(r)):              # (the usual diagonal R: L^-1 at once)
         a = 1.0 / np.sqrt(r)
@@ -1326,7 +1368,8 @@ class _InnovationWindow:
 
     def sums(self, i):
         """From entry i on: their degrees of freedom and sum of y^T (H P H^T + R)^-1 y."""
-        return int(self.d[i:self.n].sum()), float(self.r[i:self.n].sum())
+        add = np.add.reduce                     # (ndarray.sum without its wrapper)
+        return int(add(self.d[i:self.n])), float(add(self.r[i:self.n]))
 
     def decomposed(self, i):
         """(c, lam) (m, 3) of the entries from i on."""

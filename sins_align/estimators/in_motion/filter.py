@@ -93,7 +93,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sins_align.core.earth import OMEGA_IE, normal_gravity, radii
+from sins_align.core.earth import (GRAVITY_EQUATOR, GRAVITY_PER_METRE, OMEGA_IE, SOMIGLIANA_K,
+                                   WGS84_A, WGS84_E2, normal_gravity, radii)
 from sins_align.core.rotation import skew, so3_exp, so3_exp_entries, so3_log
 from sins_align.core.strapdown import NavState, mechanize
 from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEARIZE_VELOCITY,
@@ -104,10 +105,16 @@ from sins_align.estimators.in_motion.runs import (RELINEARIZE_ROTATION, RELINEAR
                                                  short_run_sums, skew as _skew)
 
 __all__ = ["InvariantEKF", "NoiseModel", "MAX_RUN", "propagate_reference", "sample_transition",
-           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES", "EXTRA_SIZES", "extra_size"]
+           "IPHI", "INU", "IBG", "IBA", "EXTRA_STATES", "EXTRA_SIZES", "extra_size",
+           "SINGLE_FLOATS"]
 
 #: longest run of samples propagated in one closed-form step, s
 MAX_RUN = 1.0
+#: a bank of one filter computes its velocity model and non-holonomic update in Python
+#: floats (:meth:`InvariantEKF.velocity_model`, :meth:`InvariantEKF.update_lateral`); False:
+#: with the bank's arrays, the reference those are equal to, bit for bit (the equality test
+#: sets it)
+SINGLE_FLOATS = True
 
 IPHI, INU, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 #: optional 3-state blocks after the 12 core states, in this order when present: the lever
@@ -604,18 +611,22 @@ class InvariantEKF:
         self.t_since_feedback += T
         if self.schedule is not None:
             self.dx = (Phi @ self.dx[0])[None]
-        nav = np.array(C1 + v1 + [lat, lon, h])        # one buffer, five arrays
+        if gyro_end.ndim == 1:
+            # one buffer, seven arrays
+            nav = np.array(C1 + v1 + [lat, lon, h]
+                           + [(x - y) / (1.0 + z) for x, y, z in zip(
+                               gyro_end.tolist(), self.bg[0].tolist(), self.sf[0].tolist())]
+                           + [(x - y) / (1.0 + z) for x, y, z in zip(
+                               accel_end.tolist(), self.ba[0].tolist(), self.sa[0].tolist())])
+            self.w_last = nav[15:18].reshape(1, 3)
+            self.f_last = nav[18:21].reshape(1, 3)
+        else:
+            nav = np.array(C1 + v1 + [lat, lon, h])        # one buffer, five arrays
+            self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
+            self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
         self.C = nav[0:9].reshape(1, 3, 3)
         self.v = nav[9:12].reshape(1, 3)
         self.lat, self.lon, self.h = nav[12:13], nav[13:14], nav[14:15]
-        if gyro_end.ndim == 1:
-            self.w_last = np.array([[(x - y) / (1.0 + z) for x, y, z in zip(
-                gyro_end.tolist(), self.bg[0].tolist(), self.sf[0].tolist())]])
-            self.f_last = np.array([[(x - y) / (1.0 + z) for x, y, z in zip(
-                accel_end.tolist(), self.ba[0].tolist(), self.sa[0].tolist())]])
-        else:
-            self.w_last = (gyro_end - self.bg) / (1.0 + self.sf)
-            self.f_last = (accel_end - self.ba) / (1.0 + self.sa)
 
     # ---------------------------------------------------------------- updates
     def _apply(self, y, H, R, nis_limit=None, consider_heading=False):
@@ -775,34 +786,34 @@ class InvariantEKF:
 
     def _feedback_one(self, dx) -> None:
         """:meth:`feedback` of a bank of one filter, dx (n,): the same arithmetic in floats
-        (the attitude, velocity and biases in one new buffer)."""
+        (the attitude, velocity, biases and the optional blocks that subtract in one new
+        buffer)."""
         d = dx.tolist()
         C = _mm(self.C[0].ravel().tolist(), list(so3_exp_entries(-d[0], -d[1], -d[2])))
         n0, n1, n2 = d[3:6]
         v0, v1, v2 = self.v[0].tolist()
         b = self.bg[0].tolist() + self.ba[0].tolist()
-        buf = np.array(C + [v0 - (C[0] * n0 + C[1] * n1 + C[2] * n2),
-                            v1 - (C[3] * n0 + C[4] * n1 + C[5] * n2),
-                            v2 - (C[6] * n0 + C[7] * n1 + C[8] * n2)]
-                       + [x - y for x, y in zip(b, d[6:12])])
+        vals = (C + [v0 - (C[0] * n0 + C[1] * n1 + C[2] * n2),
+                     v1 - (C[3] * n0 + C[4] * n1 + C[5] * n2),
+                     v2 - (C[6] * n0 + C[7] * n1 + C[8] * n2)]
+                + [x - y for x, y in zip(b, d[6:12])])
+        blocks = [(name, sl) for name, sl in (
+            ("lever", self.i_lev), ("mount", self.i_mnt), ("sf", self.i_sf), ("sa", self.i_sa),
+            ("nhc_lever", self.i_nhl), ("latency", self.i_lat)) if sl is not None]
+        for name, sl in blocks:
+            vals += [x - y for x, y in zip(getattr(self, name)[0].tolist(), d[sl])]
+        buf = np.array(vals)
         self.C = buf[0:9].reshape(1, 3, 3)
         self.v = buf[9:12].reshape(1, 3)
         self.bg = buf[12:15].reshape(1, 3)
         self.ba = buf[15:18].reshape(1, 3)
-        if self.i_lev is not None:
-            self.lever = (self.lever[0] - dx[self.i_lev])[None]
-        if self.i_mnt is not None:
-            self.mount = (self.mount[0] - dx[self.i_mnt])[None]
-        if self.i_sf is not None:
-            self.sf = (self.sf[0] - dx[self.i_sf])[None]
-        if self.i_sa is not None:
-            self.sa = (self.sa[0] - dx[self.i_sa])[None]
-        if self.i_nhl is not None:
-            self.nhc_lever = (self.nhc_lever[0] - dx[self.i_nhl])[None]
+        i = 18
+        for name, sl in blocks:
+            m = sl.stop - sl.start
+            setattr(self, name, buf[i:i + m].reshape(1, m))
+            i += m
         if self.i_nhm is not None:
             self.nhc_mount = np.dot(so3_exp(-dx[self.i_nhm]), self.nhc_mount[0])[None]
-        if self.i_lat is not None:
-            self.latency = (self.latency[0] - dx[self.i_lat])[None]
 
     def _body_rate(self, rate=None):
         """(a, w_nb), each (K, 3), body axes: the navigation frame's rate (Earth and
@@ -828,6 +839,8 @@ class InvariantEKF:
         regressors of the vibration, which the jitter the updates still hold follows (both
         alias alike at the update rate), and those states and their correlations took it
         into the attitude (a 5 Hz tone: the attitude beyond 3 sigma 30-50 % of the time)."""
+        if self.K == 1 and SINGLE_FLOATS:
+            return self._velocity_model_one(force, rate)
         z_hat, H = self._velocity_model(rate)
         if self.i_lat is not None:
             a = np.einsum("kij,kj->ki", self.C, self.f_last if force is None else force)
@@ -835,6 +848,61 @@ class InvariantEKF:
             z_hat = z_hat - self.latency * a
             H[:, :, self.i_lat] = a[:, :, None]
         return z_hat, H
+
+    def _velocity_model_one(self, force=None, rate=None):
+        """:meth:`velocity_model` of a bank of one filter: the same arithmetic on Python
+        floats (the Earth's and transport rate, the cross products, the latency's
+        acceleration, each sum in numpy's order of terms) and 2-D arrays, the products of
+        matrices numpy's as in the bank's path (BLAS rounds them its own way): the same
+        numbers to the bit (:data:`SINGLE_FLOATS`; test_in_motion_single.py)."""
+        C = self.C[0]
+        c0, c1, c2, c3, c4, c5, c6, c7, c8 = C.ravel().tolist()
+        v0, v1, v2 = self.v[0].tolist()
+        lever = self.lever[0]
+        lat = h = None
+        if self.i_lev is None and not lever.any():
+            H = np.zeros((3, self.n))
+            H[:, INU] = -C
+            z0, z1, z2 = v0, v1, v2
+        else:
+            # _body_rate: C^T (w_ie + w_en) and the body's rate against the frame
+            lat, h = float(self.lat[0]), float(self.h[0])
+            a0, a1, a2 = _frame_rate_floats(lat, h, v0, v1, c0, c1, c2, c3, c4, c5, c6, c7, c8)
+            r = (self.w_last if rate is None else rate)[0].tolist()
+            n0, n1, n2 = r[0] - a0, r[1] - a1, r[2] - a2
+            l0, l1, l2 = lever.tolist()
+            u0, u1, u2 = n1 * l2 - n2 * l1, n2 * l0 - n0 * l2, n0 * l1 - n1 * l0
+            # (the order of the terms is einsum's over a contiguous axis of 3)
+            z0 = v0 + ((c0 * u0 + c2 * u2) + c1 * u1)
+            z1 = v1 + ((c3 * u0 + c5 * u2) + c4 * u1)
+            z2 = v2 + ((c6 * u0 + c8 * u2) + c7 * u1)
+            Sl = np.array([[0.0, -l2, l1], [l2, 0.0, -l0], [-l1, l0, 0.0]])
+            Hb = np.zeros((3, self.n))
+            Hb[:, IPHI] = (np.array([[0.0, -u2, u1], [u2, 0.0, -u0], [-u1, u0, 0.0]])
+                           - Sl @ np.array([[0.0, -a2, a1], [a2, 0.0, -a0], [-a1, a0, 0.0]]))
+            Hb[:, INU] = -_I3
+            Hb[:, IBG] = -Sl
+            if self.i_lev is not None:
+                Hb[:, self.i_lev] = [[0.0, n2, -n1], [-n2, 0.0, n0], [n1, -n0, 0.0]]
+            if self.i_sf is not None:
+                Hb[:, self.i_sf] = -Sl * r
+            H = C @ Hb
+        if self.i_lat is not None:
+            # velocity_model's latency: the acceleration C f + g
+            f0, f1, f2 = (self.f_last if force is None else force)[0].tolist()
+            if lat is None:
+                lat, h = float(self.lat[0]), float(self.h[0])
+            sl = math.sin(lat)
+            s2 = sl * sl
+            g = (GRAVITY_EQUATOR * (1.0 + SOMIGLIANA_K * s2) / math.sqrt(1.0 - WGS84_E2 * s2)
+                 - GRAVITY_PER_METRE * h)
+            e0 = (c0 * f0 + c2 * f2) + c1 * f1
+            e1 = (c3 * f0 + c5 * f2) + c4 * f1
+            e2 = ((c6 * f0 + c8 * f2) + c7 * f1) - g
+            tau = float(self.latency[0, 0])
+            z0, z1, z2 = z0 - tau * e0, z1 - tau * e1, z2 - tau * e2
+            H[:, self.i_lat] = [[e0], [e1], [e2]]
+        return np.array([[z0, z1, z2]]), H[None]
 
     def _velocity_model(self, rate=None):
         C, lever = self.C, self.lever
@@ -923,6 +991,9 @@ class InvariantEKF:
         z = np.asarray(z, dtype=float)
         z_hat, H = self.velocity_model(force, rate)
         R = np.asarray(R, dtype=float)
+        if z.size == 3 and all(map(math.isfinite, z.ravel().tolist())):
+            # (one measurement, every component: the usual case)
+            return self._apply(z - z_hat, H, R, nis_limit, consider_heading)
         ok = np.isfinite(z) if z.ndim == 1 else np.isfinite(z).all(axis=0)
         if ok.all():
             return self._apply(z - z_hat, H, R, nis_limit, consider_heading)
@@ -946,6 +1017,9 @@ class InvariantEKF:
         ``slip_updates`` (how many updates it lasts), so that the updates of one turn together
         claim no more than one. Each filter of the bank takes its own speed and rate.
         ``consider_heading``: as :meth:`update_velocity`'s (a parked vehicle)."""
+        if self.K == 1 and SINGLE_FLOATS:
+            return self._lateral_one(axis, sigma, nis_limit, slip, slip_updates,
+                                     consider_heading)
         # the vehicle's side: the IMU's ``axis`` (u None), or the unit vectors u (K, 3) in
         # IMU axes of the nhc_mount states
         u = None if self.i_nhm is None else self.nhc_mount[:, :, axis]
@@ -991,6 +1065,72 @@ class InvariantEKF:
             # component changes by -d . (u x v_b) to first order
             H[:, 0, self.i_nhm] = -_cross(u, vb)
         return self._apply(-side_v(vb)[:, None], H, R, nis_limit, consider_heading)
+
+    def _lateral_one(self, axis, sigma, nis_limit, slip, slip_updates, consider_heading):
+        """:meth:`update_lateral` of a bank of one filter: the body velocity, the rates,
+        the cross products, the speed and the noise in Python floats (in numpy's order of
+        terms), the products with the vehicle's side and of matrices numpy's as in the
+        bank's path (BLAS rounds them its own way): the same numbers to the bit
+        (:data:`SINGLE_FLOATS`; test_in_motion_single.py)."""
+        c0, c1, c2, c3, c4, c5, c6, c7, c8 = self.C[0].ravel().tolist()
+        v0, v1, v2 = self.v[0].tolist()
+        b0 = c0 * v0 + c3 * v1 + c6 * v2                # C^T v
+        b1 = c1 * v0 + c4 * v1 + c7 * v2
+        b2 = c2 * v0 + c5 * v1 + c8 * v2
+        if self.i_nhm is None:
+            u = None
+
+            def side(M):                    # the side's row of (3, m) body-axis rows
+                return M[axis]
+
+            def side_v(x):                  # the side's component of a 3-vector
+                return x[axis]
+        else:
+            u = self.nhc_mount[:, :, axis]
+            uT = u[:, None, :]
+
+            def side(M):
+                return (uT @ M[None])[0, 0]
+
+            def side_v(x):
+                return float((uT @ np.array(x)[None, :, None])[0, 0, 0])
+        H = np.zeros((1, 1, self.n))
+        H[0, 0, IPHI] = -side(np.array([[0.0, -b2, b1], [b2, 0.0, -b0], [-b1, b0, 0.0]]))
+        H[0, 0, INU] = -(_I3[axis] if u is None else u[0])
+        lever = self.nhc_lever[0]
+        at_lever = self.i_nhl is not None or lever.any()
+        R = np.array([[sigma * sigma]])
+        if at_lever or slip > 0.0:
+            # _body_rate: C^T (w_ie + w_en) and the body's rate against the frame
+            lat, h = float(self.lat[0]), float(self.h[0])
+            a0, a1, a2 = _frame_rate_floats(lat, h, v0, v1, c0, c1, c2, c3, c4, c5, c6, c7, c8)
+            wl = self.w_last[0].tolist()
+            n0, n1, n2 = wl[0] - a0, wl[1] - a1, wl[2] - a2
+        if slip > 0.0:                      # the IMU's own lateral acceleration and speed
+            a_lat = abs(side_v([n1 * b2 - n2 * b1, n2 * b0 - n0 * b2, n0 * b1 - n1 * b0]))
+            speed = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            q = slip * a_lat * speed
+            R = np.array([[[sigma * sigma + slip_updates * (q * q)]]])
+        if at_lever:
+            l0, l1, l2 = lever.tolist()
+            b0, b1, b2 = b0 + (n1 * l2 - n2 * l1), b1 + (n2 * l0 - n0 * l2), \
+                b2 + (n0 * l1 - n1 * l0)
+            Sl = np.array([[0.0, -l2, l1], [l2, 0.0, -l0], [-l1, l0, 0.0]])
+            H[0, 0, IPHI] -= side(Sl @ np.array([[0.0, -a2, a1], [a2, 0.0, -a0],
+                                                 [-a1, a0, 0.0]]))
+            H[0, 0, IBG] = -side(Sl)
+            if self.i_nhl is not None:
+                H[0, 0, self.i_nhl] = -side(np.array([[0.0, -n2, n1], [n2, 0.0, -n0],
+                                                      [-n1, n0, 0.0]]))
+            if self.i_sf is not None:
+                H[0, 0, self.i_sf] = side(-Sl * wl)
+        if u is not None:
+            # (see update_lateral)
+            x0, x1, x2 = u[0].tolist()
+            H[0, 0, self.i_nhm] = [-(x1 * b2 - x2 * b1), -(x2 * b0 - x0 * b2),
+                                   -(x0 * b1 - x1 * b0)]
+        return self._apply(np.array([[-side_v([b0, b1, b2])]]), H, R, nis_limit,
+                           consider_heading)
 
     def update_attitude(self, C_ref, R, nis_limit=None):
         """Attitude of a master INS: ``C_ref = C exp(-mu x) exp(n x)``, with ``mu`` the
@@ -1053,3 +1193,20 @@ def propagate_reference(ekf: InvariantEKF, dt, gyro, accel) -> None:
         ekf.C[0], ekf.v[0], ekf.lat[0], ekf.lon[0], ekf.h[0] = s.C, s.v, s.lat, s.lon, s.h
         ekf.w_last[0] = w
         ekf.f_last[0] = f
+
+
+def _frame_rate_floats(lat, h, v0, v1, c0, c1, c2, c3, c4, c5, c6, c7, c8):
+    """C^T (w_ie + w_en) in Python floats, C = [[c0, c1, c2], [c3, c4, c5], [c6, c7, c8]]
+    (body to ENU), at latitude ``lat`` (rad), height ``h`` and east / north velocity ``v0``,
+    ``v1``: the frame's rate in the body axes as :meth:`InvariantEKF._body_rate` computes it
+    for one filter, term for term (the single-filter velocity and lateral models share it)."""
+    sl, cl = math.sin(lat), math.cos(lat)
+    d = 1.0 - WGS84_E2 * (sl * sl)
+    rn = WGS84_A / math.sqrt(d)
+    rm = rn * (1.0 - WGS84_E2) / d
+    ve = v0 / (rn + h)
+    w0 = -v1 / (rm + h)
+    w1 = OMEGA_IE * cl + ve
+    w2 = OMEGA_IE * sl + ve * sl / cl
+    return (c0 * w0 + c3 * w1 + c6 * w2, c1 * w0 + c4 * w1 + c7 * w2,
+            c2 * w0 + c5 * w1 + c8 * w2)

@@ -49,6 +49,7 @@ stream fed in blocks give the same figures at every sample.
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 
@@ -180,9 +181,11 @@ class VelocityJitter:
         self._f = np.empty((0, 3))
         self._w = np.empty((0, 3))
         self._new: list = []                     # (t, f, w) blocks not yet joined
-        # (search stretch, update stamp, frequencies (6,) Hz or NaN) of the last search
+        # (search stretch, update stamp, frequencies (6,) Hz or NaN, whether any is a
+        # number) of the last search
         self._search: tuple | None = None
         self._first: float | None = None         # the first sample's stamp
+        self._peaks_kept: dict = {}              # fit_tones' searches of the last windows
 
     def add(self, t, f, w=None) -> None:
         """Accepted samples: stamps t (n,) s, increasing; specific force f (n, 3) m/s^2;
@@ -225,7 +228,7 @@ class VelocityJitter:
     def tones(self, t: float, window: float = TONE_WINDOW):
         """(specific-force tones, rate tones) (:class:`Tones`, :func:`fit_tones`) of the
         samples within two ``window`` s up to the one stamped ``t``, or None (too few)."""
-        k = int(np.floor(t / TONE_SEARCH_PERIOD))
+        k = math.floor(t / TONE_SEARCH_PERIOD)
         known = self._search
         freq = known[2] if known is not None and known[0] == k and known[1] <= t else None
         # the stream's first seconds, while the second window fills: searched at every
@@ -233,16 +236,17 @@ class VelocityJitter:
         early = self._first is None or t - self._first < 2.0 * window + TONE_SEARCH_PERIOD
         if early:
             freq = None
-        if freq is not None and not np.isfinite(freq).any():
+        if freq is not None and not known[3]:
             # (no tone at this stretch's search, which had the samples: nothing to fit)
-            zero = Tones(t, np.zeros(3), np.zeros(3), np.zeros(3))
+            zero = Tones(t, np.zeros(3), np.zeros(3), np.zeros(3), found=False)
             return zero, zero
         tw, ww, fw = self.before(t, 2.0 * window)
-        both = fit_tones(tw, np.hstack([fw, ww]), t, window=window, freq=freq)
+        both = fit_tones(tw, np.hstack([fw, ww]), t, window=window, freq=freq,
+                         kept=self._peaks_kept)
         if both is None:
             return None
         if freq is None and not early:
-            self._search = (k, t, both.freq)
+            self._search = (k, t, both.freq, bool(np.isfinite(both.freq).any()))
         return (Tones(t, both.omega[:3], both.a[:3], both.b[:3]),
                 Tones(t, both.omega[3:], both.a[3:], both.b[3:]))
 
@@ -304,7 +308,7 @@ class VelocityJitter:
         tw = ts[i0:i1 + 1]
         dt = tw[1:] - tw[:-1]
         T = t - tw[0]
-        tc = tw - tw.mean()
+        tc = tw - np.add.reduce(tw) / len(tw)            # (tw.mean(), without its wrapper)
         a = 1.0 / len(tw) + tc * (tc[-1] / (tc @ tc))
         A = np.cumsum(a[::-1])[::-1][1:]                  # sum_{k >= j}, j = 1 .. n
         f = self._f[i0 + 1:i1 + 1]
@@ -315,7 +319,7 @@ class VelocityJitter:
         jitter = (1.0 - A) @ dv
         if tone is not None:
             jitter = jitter + a @ tone.integral(tw)
-        return jitter, dv.sum(axis=0) / T
+        return jitter, np.add.reduce(dv, axis=0) / T
 
 
 class Tones:
@@ -323,18 +327,21 @@ class Tones:
     (k,); an axis without a tone has a = b = 0): the tones of a sensor found by
     :func:`fit_tones` about the instant ``t0``."""
 
-    def __init__(self, t0: float, omega, a, b, freq=None):
+    def __init__(self, t0: float, omega, a, b, freq=None, found=None):
         self.t0 = float(t0)
         self.omega = np.asarray(omega, dtype=float)
         self.a = np.asarray(a, dtype=float)
         self.b = np.asarray(b, dtype=float)
         #: Hz (k,), NaN where none: the frequencies the search found (:func:`fit_tones`)
         self.freq: np.ndarray | None = freq
+        self._found = found                     # (None: not asked yet)
 
     @property
     def found(self) -> bool:
         """Whether any axis has a tone."""
-        return bool((self.omega > 0.0).any())
+        if self._found is None:
+            self._found = bool((self.omega > 0.0).any())
+        return self._found
 
     def value(self, s) -> np.ndarray:
         """The tones at the instants s (m,): (m, 3)."""
@@ -370,6 +377,26 @@ def _window_basis(n: int, span: float, lo: float, hi: float):
     for a in res:
         a.flags.writeable = False
     return res
+
+
+#: windows whose search (_peaks) a VelocityJitter keeps: one search's window is, sample for
+#: sample, the next search's window before (a second later)
+_PEAKS_KEPT = 4
+
+
+def _peaks_of(t, x, band, kept):
+    """:func:`_peaks` (its frequencies a new array); with ``kept`` (a dict), a window
+    searched before is taken again when its stamps and samples are the same to the bit."""
+    if kept is None:
+        return _peaks(t, x, band)
+    key = (t.tobytes(), x.tobytes(), band)
+    out = kept.get(key)
+    if out is None:
+        out = _peaks(t, x, band)
+        if len(kept) >= _PEAKS_KEPT:
+            del kept[next(iter(kept))]
+        kept[key] = out
+    return out[0], out[1], out[2].copy()
 
 
 def _peaks(t, x, band):
@@ -408,7 +435,8 @@ def _peaks(t, x, band):
     return tm, poly, np.where(ok, freq[1:-1][k], np.nan)
 
 
-def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq=None):
+def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq=None,
+              kept: dict | None = None):
     """The tone within ``band`` Hz of each column of the samples x (m, k) stamped t (m,)
     (each the mean over the interval ending at its stamp: fitted at the intervals'
     middles), as :class:`Tones` about t0 (k entries); None when the samples span less than
@@ -423,7 +451,9 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq
     window by least squares together with the cubic (the vehicle's motion: a 1 Hz turn or
     roll is left to it), at the last window's peak frequency. ``freq`` (k,) Hz (NaN: no
     tone): the frequencies of an earlier search, fitted without searching (the returned
-    Tones' ``freq`` are those of the search either way)."""
+    Tones' ``freq`` are those of the search either way). ``kept``: a dict in which the
+    searches of the last few windows are kept for the next calls (a window searched
+    again, the same to the bit, is not searched anew)."""
     t = np.asarray(t, dtype=float).reshape(-1)
     x = np.asarray(x, dtype=float).reshape(len(t), -1)
     if len(t) < 2 or t[-1] - t[0] < 0.98 * window:
@@ -432,10 +462,10 @@ def fit_tones(t, x, t0: float, band=TONE_BAND, window: float = TONE_WINDOW, freq
     if len(t) - i1 < _MIN_SAMPLES:
         return None
     if freq is None:
-        tm, poly, f_now = _peaks(t[i1:], x[i1:], band)
+        tm, poly, f_now = _peaks_of(t[i1:], x[i1:], band, kept)
         if t[-1] - t[0] >= 1.98 * window and np.isfinite(f_now).any():
             i0 = int(t.searchsorted(t[i1] - window, "left"))
-            _, _, f_before = _peaks(t[i0:i1 + 1], x[i0:i1 + 1], band)
+            _, _, f_before = _peaks_of(t[i0:i1 + 1], x[i0:i1 + 1], band, kept)
             f_now[~(np.abs(f_now - f_before) <= 2.01 * _TONE_STEP)] = np.nan
     else:
         f_now = np.array(freq, dtype=float)

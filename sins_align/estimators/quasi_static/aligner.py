@@ -74,9 +74,15 @@ HOLE_RATIO = 1.5
 #: s: a specific force out of range for at most this long is a shock: the sample is used, its
 #: velocity increment with a variance (event 'force_out_of_range'); longer, they are rejected
 FORCE_SHOCK_TIME = 1.0
+#: the gyro's white-noise floor at the backtrack (a flat spectrum at 0.1-0.4 of the sample
+#: rate, backtrack.GyroNoiseFit) this many times the configured gyro_arw or more says the IMU
+#: is worse than its specs (a tactical MEMS as 'navigation': 100x; navigation data 1.0-1.3x
+#: on still, car and ship bases; the real ring-laser log's 25-35x is not a flat floor)
+NOISE_BEYOND_SPEC = 50.0
 
 
 STATES = ("waiting", "aligning", "aligned", "disturbed", "fault")
+_UNKNOWN_VALUES = [math.pi ** 2, 0.0, 0.0, 0.0, math.pi ** 2, 0.0, 0.0, 0.0, math.pi ** 2]
 
 #: What an Aligner tells its subscribers (:meth:`Aligner.subscribe`).
 EVENT_KINDS = (
@@ -144,6 +150,8 @@ class StateView:
     time_to_aligned: float | None
     events: dict
     nominal_dt: float | None
+    gyro_noise_ratio: float | None = None
+    specs_consistent: bool = True
 
 
 class Aligner(EventSource, AttitudeReadout):
@@ -262,6 +270,8 @@ class Aligner(EventSource, AttitudeReadout):
         floor reads the last second's mean specific force as a running mean
         (``RecentMotion.second_mean_force``) and the 1 s block means of the buffer once
         per block; the arithmetic is that of :meth:`covariance_reference` on floats."""
+        if not self.specs_consistent:
+            return list(_UNKNOWN_VALUES)
         p = self.filter.attitude_covariance(0).tolist()
         c = self.config
         if c.backtrack and not self.filter.backtracked:
@@ -322,6 +332,8 @@ class Aligner(EventSource, AttitudeReadout):
         """:attr:`covariance` computed from scratch with numpy (the mean specific force of
         the last second summed anew, the block means read anew): the reference the running
         computation is tested against."""
+        if not self.specs_consistent:
+            return np.eye(3) * math.pi ** 2
         P = self.filter.attitude_covariance(0)
         c = self.config
         if c.backtrack and not self.filter.backtracked:
@@ -386,6 +398,28 @@ class Aligner(EventSource, AttitudeReadout):
         return bool(f.fine and f.updates >= 5 and f.nis_mean[0] > self.config.disturbance_nis)
 
     @property
+    def gyro_noise_ratio(self) -> float | None:
+        """The gyro's white-noise floor the backtrack measured (the lower of its two
+        octaves' levels) over the configured ``gyro_arw`` (both as densities' roots); None
+        before the backtrack, where the spectrum shows no flat floor (motion, tones,
+        quantization) or gyro_arw is 0."""
+        fit = self.filter.gyro_noise
+        arw = self.config.specs.gyro_arw
+        if fit is None or not fit.flat or arw <= 0.0:
+            return None
+        return math.sqrt(min(fit.q_top, fit.q_next)) / arw
+
+    @property
+    def specs_consistent(self) -> bool:
+        """False once the gyro's noise floor is NOISE_BEYOND_SPEC times the configured one or
+        more (:attr:`gyro_noise_ratio`): the IMU is worse than its specs, so their biases,
+        which no data on a still base can check, cannot be trusted either; the attitude is
+        then published as unknown (pi^2 per axis, never aligned, status 'fault') until a
+        restart with the right ``grade`` or specs."""
+        r = self.gyro_noise_ratio
+        return r is None or r < NOISE_BEYOND_SPEC
+
+    @property
     def aligned(self) -> bool:
         """Aligned flag: :meth:`aligned_now` as of the last update (the published std only
         shrinks at an update; it is re-checked after every update, hole and restart)."""
@@ -394,7 +428,7 @@ class Aligner(EventSource, AttitudeReadout):
     @property
     def status(self) -> str:
         """One of :data:`STATES`."""
-        if self.units_suspect:
+        if self.units_suspect or not self.specs_consistent:
             return "fault"
         if self.t_last is None:
             return "waiting"
@@ -418,7 +452,8 @@ class Aligner(EventSource, AttitudeReadout):
             limit_std_deg=self.limit_std_deg, samples_used=self.samples_used,
             rejected=dict(self.rejected), last_reject=self.last_reject, nis=self.nis,
             time_to_aligned=self.time_to_aligned, events=dict(self.events),
-            nominal_dt=self.nominal_dt)
+            nominal_dt=self.nominal_dt, gyro_noise_ratio=self.gyro_noise_ratio,
+            specs_consistent=self.specs_consistent)
 
     # ------------------------------------------------------------------ input
     def update(self, stamp, gyro, accel) -> int:
@@ -715,6 +750,10 @@ class Aligner(EventSource, AttitudeReadout):
             Pa[:, 2, :] = 0.0
             Pa[:, :, 2] = 0.0
             Pa[:, 2, 2] = math.pi ** 2
+        if not self.specs_consistent:
+            # known at the backtrack, for the filter's life: every state after it
+            after = np.array([snaps[i][4] for i in idx])[g][sel]
+            Pa[after] = np.eye(3) * math.pi ** 2
         sl = slice(at, at + L)
         out.dcm[at + sel] = C
         out.covariance[at + sel] = 0.5 * (Pa + Pa.transpose(0, 2, 1))
@@ -954,7 +993,7 @@ class Aligner(EventSource, AttitudeReadout):
         good alignment by itself: its updates are gated, and the flag drops when the std
         grows past the criterion (a real change of attitude re-inflates the covariance)."""
         c = self.config
-        if self.units_suspect:
+        if self.units_suspect or not self.specs_consistent:
             return False
         if c.backtrack and not self.filter.backtracked:
             return False
@@ -1015,6 +1054,10 @@ class Aligner(EventSource, AttitudeReadout):
             "accel_noise_above_spec": (None if vrw is None
                                        else bool(vrw[0] > self.config.specs.accel_vrw)),
             "nis": self.nis,
+            # the gyro's white-noise floor over the configured gyro_arw (None: no flat
+            # floor seen, or before the backtrack); specs_consistent False from 50x on
+            "gyro_noise_ratio": self.gyro_noise_ratio,
+            "specs_consistent": self.specs_consistent,
         }
 
 

@@ -11,6 +11,7 @@ criterion.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -51,6 +52,7 @@ class Backtrack:
             C0, adt, aw, af, u, bridging, level_steps(hole[:, 0], gap))
         self.fine_R_std = r_std
         self._set_velocity_noise(q)
+        self.gyro_noise = measure_gyro_noise(adt, aw[:, 0], bridging)
         R = np.zeros((self.n, 3, 3))
         R[:, [0, 1, 2], [0, 1, 2]] = r_std ** 2
         self._start_pass(C0, fine=True, std=std0, R=R, v0=v0)
@@ -302,6 +304,82 @@ class Backtrack:
         # everything derived from Qc: the discretisations and the schedule cache's key
         self._cache = {k: v for k, v in self._cache.items() if k[0] not in ("D", "DT", "Dm")}
         self._cfg_key = self._cfg_key[:3] + (Qc.tobytes(),) + self._cfg_key[4:]
+
+
+@dataclass(frozen=True)
+class GyroNoiseFit:
+    """The gyro's white-noise level the buffered rates show (densities, rad^2/s: an angle
+    random walk squared), from :func:`band_noise_density` in the top octave below 80 % of
+    the Nyquist frequency (0.2-0.4 of the sample rate: ``q_top``) and in the octave under
+    it (0.1-0.2: ``q_next``); None where the buffer holds no whole segment.
+
+    A white noise gives one level in both; what a platform's motion leaks into them falls
+    with frequency (a swaying car's or a ship's), an engine's tones raise one octave more
+    than the other, and a gyro's quantization rises with frequency (the real ring-laser
+    log: 25-35x the navigation preset at 5-20 Hz, 60-70x at 30-50 Hz). The top level is the
+    sensor's noise floor only where the two agree (:attr:`flat`).
+    """
+
+    q_top: float | None
+    q_next: float | None
+
+    @property
+    def flat(self) -> bool:
+        """The top two octaves agree within FLAT_RATIO either way (in the density's root)."""
+        return (self.q_top is not None and self.q_next is not None and self.q_top > 0.0
+                and self.q_top / FLAT_RATIO ** 2 <= self.q_next <= FLAT_RATIO ** 2 * self.q_top)
+
+
+#: How far apart (the density's square root, either way) the top two octaves may stand for
+#: the top's level to count as the gyro's noise floor (:attr:`GyroNoiseFit.flat`).
+FLAT_RATIO = 1.5
+#: Samples per periodogram of :func:`band_noise_density` (a Hann window this long keeps a
+#: ship's sway below a navigation gyro's noise at 0.2 of the sample rate; 64 does not), and
+#: the whole segments it needs (fewer: a median of a few hundred ordinates, 1 % of samples
+#: lost at random leave ~2 in 60 s of the real log, and its octaves then read alike by chance)
+SEGMENT = 256
+MIN_SEGMENTS = 8
+
+
+def measure_gyro_noise(dt: np.ndarray, w: np.ndarray,
+                       bridging: np.ndarray | None = None) -> GyroNoiseFit:
+    """:class:`GyroNoiseFit` of the rates ``w`` (M, 3) with intervals ``dt`` (M,); the
+    samples ``bridging`` marks (put in for missing ones) are left out."""
+    ok = np.ones(len(dt), dtype=bool) if bridging is None else ~np.asarray(bridging, bool)
+    fs = 1.0 / median(dt)
+    return GyroNoiseFit(band_noise_density(dt, w, ok, 0.2 * fs, 0.4 * fs),
+                        band_noise_density(dt, w, ok, 0.1 * fs, 0.2 * fs))
+
+
+def band_noise_density(dt: np.ndarray, x: np.ndarray, ok: np.ndarray, lo: float,
+                       hi: float) -> float | None:
+    """The white noise density of ``x`` (M, 3; its unit squared per Hz: rad^2/s for rates)
+    in the band ``lo``-``hi`` Hz: the median of the periodograms of the segments of SEGMENT
+    consecutive samples ``ok`` (M,) holds (each less its line, Hann-windowed: the leakage
+    of a large slow motion stays within a few bins), over the bins in the band and the three
+    axes, divided by ln 2 (a white noise's periodogram ordinate is exponential). A median:
+    a few tones in the band move it little. None when no segment is whole (no hole, no
+    sample put in, intervals within 15 % of the median) or fewer than MIN_SEGMENTS, or no
+    bin is in the band."""
+    h = median(dt)
+    good = ok & (np.abs(dt - h) <= 0.15 * h)
+    starts, k = [], 0
+    for b in np.append(np.flatnonzero(~good), len(dt)).tolist():
+        while b - k >= SEGMENT:
+            starts.append(k)
+            k += SEGMENT
+        k = b + 1
+    f = np.fft.rfftfreq(SEGMENT, h)
+    band = (f >= lo) & (f <= hi)
+    if len(starts) < MIN_SEGMENTS or not band.any():
+        return None
+    seg = x[np.asarray(starts)[:, None] + np.arange(SEGMENT)]        # (S, SEGMENT, 3)
+    tt = np.arange(SEGMENT) - 0.5 * (SEGMENT - 1)
+    seg = seg - seg.mean(axis=1, keepdims=True)
+    seg = seg - tt[None, :, None] * (np.einsum("j,sjk->sk", tt, seg) / np.dot(tt, tt))[:, None]
+    win = np.hanning(SEGMENT)
+    spec = np.abs(np.fft.rfft(seg * win[None, :, None], axis=1)[:, band]) ** 2
+    return float(np.median(spec) * h / np.dot(win, win) / math.log(2.0))
 
 
 def velocity_random_walk(d: np.ndarray, p: float, q0: float = 0.0, z: float = 2.0,

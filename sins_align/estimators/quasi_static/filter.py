@@ -108,6 +108,9 @@ class AlignmentFilter(FastPath, Backtrack):
         # the fine pass's accelerometer noise density per run, m/s/sqrt(s): the configured
         # accel_vrw, or more when the buffer shows more (None before the backtrack)
         self.accel_vrw_used: np.ndarray | None = None
+        # the gyro's white-noise floor the buffer shows (backtrack.GyroNoiseFit; None
+        # before the backtrack)
+        self.gyro_noise = None
         self.fine_period = c.fine_update_period
         self._steady_start = None
         self._steady_std = None
