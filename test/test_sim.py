@@ -383,10 +383,10 @@ def test_presets_exist_and_bad_arguments_raise():
 
 
 def test_child_streams_are_the_spawned_ones():
-    """Each child stream a run makes on its own is the generator default_rng(seed).spawn(6)
+    """Each child stream a run makes on its own is the generator default_rng(seed).spawn(8)
     gives at that position, so 'everything comes from default_rng(seed)' stays true."""
     for seed in (0, 7, 2 ** 40 + 3):
-        spawned = np.random.default_rng(seed).spawn(6)
+        spawned = np.random.default_rng(seed).spawn(len(_STREAMS))
         for i, name in enumerate(_STREAMS):
             own = _stream(np.random.SeedSequence(seed), name)
             assert np.array_equal(own.standard_normal(50), spawned[i].standard_normal(50)), name

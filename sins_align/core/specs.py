@@ -29,11 +29,17 @@ class SensorSpecs:
     gyro_arw : rad/sqrt(s) — angle random walk (white rate noise density).
     accel_bias : m/s^2 — constant accelerometer bias.
     accel_vrw : m/s/sqrt(s) — velocity random walk (white specific-force noise density).
-    gyro_bias_instability : rad/s — first-order Gauss-Markov bias wander (simulation only).
+    gyro_bias_instability : rad/s — stationary std of a first-order Gauss-Markov bias wander
+        (a datasheet's bias instability); the estimators model it.
     accel_bias_instability : m/s^2 — likewise for the accelerometer.
     bias_correlation_time : s — correlation time of the bias wander.
     gyro_quantization : rad — angle increment quantum (simulation only, 0 = none).
     accel_quantization : m/s — velocity increment quantum (simulation only, 0 = none).
+    gyro_warmup : rad/s — std of the extra bias at power-on that settles as
+        ``exp(-t / warmup_time)`` (0 = none); the estimators cover it as one more wander
+        of that std and correlation time.
+    accel_warmup : m/s^2 — likewise for the accelerometer.
+    warmup_time : s — time constant of the warm-up.
     """
 
     gyro_bias: float
@@ -45,16 +51,21 @@ class SensorSpecs:
     bias_correlation_time: float = 300.0
     gyro_quantization: float = 0.0
     accel_quantization: float = 0.0
+    gyro_warmup: float = 0.0
+    accel_warmup: float = 0.0
+    warmup_time: float = 300.0
 
     def __post_init__(self):
         for name in ("gyro_bias", "gyro_arw", "accel_bias", "accel_vrw",
                      "gyro_bias_instability", "accel_bias_instability",
-                     "gyro_quantization", "accel_quantization"):
+                     "gyro_quantization", "accel_quantization", "gyro_warmup", "accel_warmup"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0.0:
                 raise ValueError(f"sensor spec {name} must be finite and >= 0, got {v!r}")
-        if not np.isfinite(self.bias_correlation_time) or self.bias_correlation_time <= 0.0:
-            raise ValueError("sensor spec bias_correlation_time must be > 0")
+        for name in ("bias_correlation_time", "warmup_time"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0.0:
+                raise ValueError(f"sensor spec {name} must be > 0")
 
     def with_(self, **kw) -> "SensorSpecs":
         """Copy with some fields replaced."""

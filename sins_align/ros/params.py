@@ -98,6 +98,12 @@ def _check_scale(value) -> str | None:
     return None
 
 
+def _check_correlation_time(value) -> str | None:
+    if value != -1.0 and not value > 0.0:
+        return "bias_correlation_time and warmup_time must be -1 (from grade) or > 0 s"
+    return None
+
+
 def scale_factor_stds(values: dict[str, Any]) -> tuple[float, float]:
     """(gyro, accel) scale-factor 1-sigma as fractions, -1 (auto) resolved by the gyro bias
     in use (:func:`sensor_specs`): none below 0.1 deg/h (a navigation-grade IMU's few ppm
@@ -142,6 +148,18 @@ PARAMS: tuple[ParamSpec, ...] = (
               -1.0, 1e6),
     ParamSpec("accel_vrw", -1.0, "Accelerometer white noise, micro-g/sqrt(Hz) (-1 = from grade).",
               -1.0, 1e6),
+    ParamSpec("gyro_bias_instability", -1.0, "Gyro bias instability (first-order Gauss-Markov "
+              "wander) 1-sigma, deg/h (-1 = from grade: none).", -1.0, 1e6),
+    ParamSpec("accel_bias_instability", -1.0, "Accelerometer bias instability 1-sigma, "
+              "micro-g (-1 = from grade: none).", -1.0, 1e6),
+    ParamSpec("bias_correlation_time", -1.0, "Correlation time of the bias instability, s "
+              "(-1 = from grade: 300).", -1.0, 1e6, rule=_check_correlation_time),
+    ParamSpec("gyro_warmup", -1.0, "Gyro warm-up: 1-sigma extra bias at power-on that settles "
+              "over warmup_time, deg/h (-1 = from grade: none).", -1.0, 1e6),
+    ParamSpec("accel_warmup", -1.0, "Accelerometer warm-up 1-sigma, micro-g (-1 = from grade: "
+              "none).", -1.0, 1e6),
+    ParamSpec("warmup_time", -1.0, "Time constant of the warm-up, s (-1 = from grade: 300).",
+              -1.0, 1e6, rule=_check_correlation_time),
     ParamSpec("coarse_velocity_noise", 0.01, "Zero-velocity measurement noise of the coarse "
               "pass, m/s for updates 0.01 s apart (scaled to the update interval).", 1e-6, 10.0),
     ParamSpec("coarse_update_period", 0.1, "Coarse-pass update interval, s (0 = every sample, "
@@ -264,7 +282,10 @@ SIM_PARAMS: tuple[ParamSpec, ...] = _scoped(
               "frame in ENU, deg."),
     replace(PARAMS_BY_NAME["grade"], default="navigation", allow_empty=False,
             description="Sensor grade preset of the simulated IMU."),
-    *(PARAMS_BY_NAME[n] for n in ("gyro_bias", "gyro_arw", "accel_bias", "accel_vrw")),
+    *(PARAMS_BY_NAME[n] for n in ("gyro_bias", "gyro_arw", "accel_bias", "accel_vrw",
+                                  "gyro_bias_instability", "accel_bias_instability",
+                                  "bias_correlation_time", "gyro_warmup", "accel_warmup",
+                                  "warmup_time")),
     ParamSpec("sway", "none", "Sway preset: none, car (parked car being boarded), ship (moored "
               "ship).", choices=tuple(SWAY_PRESETS)),
     ParamSpec("sway_amplitude", 1.0, "Factor on the sway preset amplitudes.", 0.0, 100.0),
@@ -312,6 +333,11 @@ _TO_CONFIG = {
     "heading_max_limit_std": "heading_max_limit_std_deg", "disturbance_nis": "disturbance_nis",
 }
 _SPEC_UNITS = {"gyro_bias": DPH, "gyro_arw": DPSH, "accel_bias": UG, "accel_vrw": UG_PSHZ}
+#: The optional figures: -1 (or absent) = the grade's, or the SensorSpecs default (none,
+#: 300 s) without a grade.
+_EXTRA_SPEC_UNITS = {"gyro_bias_instability": DPH, "accel_bias_instability": UG,
+                     "bias_correlation_time": 1.0, "gyro_warmup": DPH, "accel_warmup": UG,
+                     "warmup_time": 1.0}
 
 #: Why a configuration without a grade is refused (one line).
 GRADE_REQUIRED = ("grade is required: navigation (0.01 deg/h gyro), tactical (1 deg/h) or "
@@ -387,10 +413,14 @@ def defaults() -> dict[str, Any]:
 
 def sensor_specs(values: dict[str, Any]):
     """The :class:`~sins_align.core.specs.SensorSpecs` of parameter values: the ``grade``
-    preset with ``gyro_bias``, ``gyro_arw``, ``accel_bias``, ``accel_vrw`` where >= 0."""
+    preset with ``gyro_bias``, ``gyro_arw``, ``accel_bias``, ``accel_vrw`` where >= 0 (all
+    four without a grade), and the bias instabilities, the warm-ups and their times where
+    >= 0 (absent = from the grade)."""
     over = {k: float(values[k]) * unit for k, unit in _SPEC_UNITS.items() if values[k] >= 0.0}
+    over.update({k: float(values[k]) * unit for k, unit in _EXTRA_SPEC_UNITS.items()
+                 if values.get(k, -1.0) >= 0.0})
     if not values["grade"]:
-        if len(over) < len(_SPEC_UNITS):
+        if not all(k in over for k in _SPEC_UNITS):
             raise ValueError(GRADE_REQUIRED)
         return SensorSpecs(**over)
     specs = grade_specs(values["grade"])

@@ -36,6 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from sins_align.core.specs import SensorSpecs, grade_specs
 from sins_align.estimators.quasi_static import AlignConfig, Aligner
 from sins_align.core.rotation import so3_exp, so3_log
 from sins_align.sim.simulator import (SwayProfile, combine, corrupt, door_slam, relevel, shove,
@@ -67,7 +68,7 @@ class Case:
     name : str.
     duration : s of data.
     sway : SwayProfile or preset name (events are part of it).
-    specs : grade name of the IMU (simulated and configured alike).
+    specs : grade name or SensorSpecs of the IMU (simulated and configured alike).
     rpy_deg : mean true attitude, REP-103 deg.
     initial_rpy_deg : the Aligner's initial attitude (None = identity).
     faults : keyword arguments of :func:`sins_align.sim.simulator.corrupt`, times in s since the
@@ -81,7 +82,7 @@ class Case:
     name: str
     duration: float
     sway: SwayProfile | str = "none"
-    specs: str = "navigation"
+    specs: SensorSpecs | str = "navigation"
     rpy_deg: tuple[float, float, float] = DEFAULT_RPY
     initial_rpy_deg: tuple[float, float, float] | None = None
     faults: dict = field(default_factory=dict)
@@ -373,6 +374,24 @@ def _build_cases() -> dict[str, Case]:
     cases.append(Case("upside_down_from_identity", 300.0, rpy_deg=(180.0, 0.0, 30.0),
                       initial_rpy_deg=None, expectations=_HONEST,
                       note="truth roll 180 deg, the Aligner starts from identity"))
+    # sensor errors a datasheet lists beside the biases and noise densities, configured as
+    # the datasheet gives them: bias instability (first-order Gauss-Markov wander) and the
+    # quantum of the increments
+    nav, tac = grade_specs("navigation"), grade_specs("tactical")
+    for name, base, ratio, tau in (("wander_nav_0.3x_300s", nav, 0.3, 300.0),
+                                   ("wander_nav_1x_30s", nav, 1.0, 30.0),
+                                   ("wander_tactical_1x_30s", tac, 1.0, 30.0)):
+        cases.append(Case(name, 600.0, specs=base.with_(
+            gyro_bias_instability=ratio * base.gyro_bias,
+            accel_bias_instability=ratio * base.accel_bias, bias_correlation_time=tau),
+            expectations=_HONEST, note=f"bias instability {ratio:g}x the biases, correlation "
+                                       f"time {tau:g} s"))
+    cases.append(Case("warmup_nav_3x_300s", 600.0, specs=nav.with_(
+        gyro_warmup=3.0 * nav.gyro_bias, accel_warmup=3.0 * nav.accel_bias, warmup_time=300.0),
+        expectations=_HONEST, note="power-on biases of 3x the biases settling over 300 s"))
+    cases.append(Case("quantized_nav", 600.0, specs=nav.with_(gyro_quantization=2e-5,
+                                                              accel_quantization=5e-3),
+                      expectations=_HONEST, note="increments quantised: 4 arcsec, 5 mm/s"))
     return {c.name: c for c in cases}
 
 

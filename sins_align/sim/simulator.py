@@ -750,16 +750,23 @@ def _put(out: np.ndarray, b: np.ndarray) -> None:
 
 class _Errors:
     """Errors of one sensor triad (gyro or accelerometer) of n runs: constant bias, white noise,
-    first-order Gauss-Markov wander, quantisation of the increments with the residual carried.
+    first-order Gauss-Markov wander, warm-up, quantisation of the increments with the residual
+    carried.
 
     Parameters: bias (n, 3); white : noise density; instability, quantum : SensorSpecs figures;
     seqs : the runs' seed sequences; kind : 'gyro' or 'accel' (names the child streams);
-    noise : False = no white noise and no wander.
+    noise : False = no white noise and no wander; warmup, warmup_time : the SensorSpecs
+    figures (a power-on bias N(0, warmup^2) per axis settling as exp(-t / warmup_time), t
+    since t0; drawn like the bias, with or without noise).
     """
 
     def __init__(self, bias: np.ndarray, white: float, instability: float, quantum: float,
-                 seqs: list[np.random.SeedSequence], kind: str, noise: bool):
+                 seqs: list[np.random.SeedSequence], kind: str, noise: bool,
+                 warmup: float = 0.0, warmup_time: float = 300.0):
         self.bias, self.white, self.instability, self.quantum = bias, white, instability, quantum
+        self.warm = (np.array([_stream(q, kind + "_warmup").normal(0.0, warmup, 3) for q in seqs])
+                     if warmup > 0.0 else None)
+        self.warmup_time = warmup_time
         self.noise = [_stream(q, kind + "_noise") for q in seqs] if noise else None
         wander = noise and instability > 0.0
         self.wander = [_stream(q, kind + "_wander") for q in seqs] if wander else None
@@ -768,12 +775,14 @@ class _Errors:
         self.residual = np.zeros_like(bias)
 
     def add(self, ideal: np.ndarray, runs: slice, out: np.ndarray, buf: np.ndarray, rate: float,
-            a: float):
-        """``out`` (m, nr, 3) = ``ideal`` + bias + white noise + wander of the runs ``runs``,
-        quantised; advances the wander and the quantisation residual. Returns the wander added
-        (None when off)."""
+            a: float, t: np.ndarray):
+        """``out`` (m, nr, 3) = ``ideal`` + bias + white noise + wander + warm-up of the runs
+        ``runs`` at the sample times ``t`` (m,) since t0, quantised; advances the wander and
+        the quantisation residual. Returns the wander added (None when off)."""
         m, dt = len(out), 1.0 / rate
         base = ideal + self.bias[runs]
+        if self.warm is not None:
+            base = base + self.warm[runs] * np.exp(-t / self.warmup_time)[:, None, None]
         drift = None
         if self.noise is None:
             out[...] = base
@@ -796,11 +805,12 @@ class _Errors:
 # Simulator
 # ----------------------------------------------------------------------------------------------
 #: The child streams of a run's seed, in spawn order.
-_STREAMS = ("sway", "bias", "gyro_noise", "accel_noise", "gyro_wander", "accel_wander")
+_STREAMS = ("sway", "bias", "gyro_noise", "accel_noise", "gyro_wander", "accel_wander",
+            "gyro_warmup", "accel_warmup")
 
 
 def _stream(seq: np.random.SeedSequence, name: str) -> np.random.Generator:
-    """Child stream ``name`` of ``seq``: the generator ``np.random.default_rng(seed).spawn(6)[i]``,
+    """Child stream ``name`` of ``seq``: the generator ``np.random.default_rng(seed).spawn(8)[i]``,
     i = ``_STREAMS.index(name)``, made on its own (a run makes only the streams it uses)."""
     child = np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key + (_STREAMS.index(name),),
                                    pool_size=seq.pool_size)
@@ -879,10 +889,11 @@ class _Runs:
             gyro_bias = drawn[:, 0] if gyro_bias is None else gyro_bias
             accel_bias = drawn[:, 1] if accel_bias is None else accel_bias
         self.gyro = _Errors(np.array(gyro_bias, dtype=float), sp.gyro_arw,
-                            sp.gyro_bias_instability, sp.gyro_quantization, seqs, "gyro", noise)
+                            sp.gyro_bias_instability, sp.gyro_quantization, seqs, "gyro", noise,
+                            sp.gyro_warmup, sp.warmup_time)
         self.accel = _Errors(np.array(accel_bias, dtype=float), sp.accel_vrw,
                              sp.accel_bias_instability, sp.accel_quantization, seqs, "accel",
-                             noise)
+                             noise, sp.accel_warmup, sp.warmup_time)
         self._a = float(np.exp(-self.dt / sp.bias_correlation_time))
         self._buf = np.empty(3 * max(block, _CHUNK))
 
@@ -927,8 +938,9 @@ class _Runs:
         dC = np.swapaxes(R[:-1], -1, -2) @ E @ R[1:]
         gyro_ideal = so3_log(dC) / self.dt
         accel_ideal = np.einsum("...ji,...j->...i", C[1:], (v[1:] - v[:-1]) / self.dt - self.g_n)
-        gyro_drift = self.gyro.add(gyro_ideal, runs, gyro, self._buf, self.rate, self._a)
-        accel_drift = self.accel.add(accel_ideal, runs, accel, self._buf, self.rate, self._a)
+        gyro_drift = self.gyro.add(gyro_ideal, runs, gyro, self._buf, self.rate, self._a, s[1:])
+        accel_drift = self.accel.add(accel_ideal, runs, accel, self._buf, self.rate, self._a,
+                                     s[1:])
         return dict(s=s, R=R, C=C, d=d, v=v, gyro_ideal=gyro_ideal, accel_ideal=accel_ideal,
                     gyro_drift=gyro_drift, accel_drift=accel_drift)
 
@@ -950,7 +962,7 @@ class ImuSimulator:
     gyro_bias : (3,) rad/s, body, optional — constant gyro bias (default: drawn N(0, spec)).
     accel_bias : (3,) m/s^2, body, optional — constant accel bias (default: drawn N(0, spec)).
     noise : bool — False switches off the random processes (white noise and bias wander);
-        constant biases and quantisation stay.
+        constant biases, the warm-up (``specs.gyro_warmup`` etc.) and quantisation stay.
     """
 
     def __init__(self, rate: float = 100.0, lat_deg: float = 34.0, height_m: float = 0.0,

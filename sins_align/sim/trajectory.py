@@ -56,8 +56,13 @@ Sensor errors (each sample, per axis ``i``)::
   (``gyro_scale_ppm``, ``accel_scale_ppm``; consumer MEMS are ~1000-5000 ppm, tactical
   ~100-300 ppm, navigation grade a few ppm);
 - ``b``: constant bias ``N(0, bias^2)`` per axis and run, and ``noise`` white of std
-  ``arw / sqrt(dt)``, ``vrw / sqrt(dt)``, from a :class:`~sins_align.core.specs.SensorSpecs`
-  (bias wander and quantisation are not simulated here);
+  ``arw / sqrt(dt)``, ``vrw / sqrt(dt)``, from a :class:`~sins_align.core.specs.SensorSpecs`;
+  plus, when the specs give them, the bias wander (first-order Gauss-Markov of stationary
+  std ``*_bias_instability`` and correlation time ``bias_correlation_time``, started from its
+  stationary distribution) and a warm-up (a power-on bias ``N(0, *_warmup^2)`` per axis
+  that settles as ``exp(-t / warmup_time)``);
+  the samples are then quantised as increments (``*_quantization``, rad and m/s) with the
+  residual carried, as :mod:`sins_align.sim.simulator` does;
 - ``vib``: rotor vibration (:class:`Vibration`), an additive input that is not part of the
   truth (the body's vibration displacement is a fraction of a millimetre). Each axis is a sum
   of sinusoids ``a sin(2 pi f t + phi)`` of frequencies drawn uniformly in a band (e.g.
@@ -87,7 +92,8 @@ measurement time ``gnss_t``), lever arm ``l^b`` from the IMU to the antenna:
   ``gnss_*`` arrays; its time is in ``gnss_dropped_t``).
 
 Randomness: ``np.random.SeedSequence(seed)`` spawned into independent streams (biases, IMU
-noise, GNSS velocity noise, scale factors, vibration, GNSS dropouts, GNSS position noise), so
+noise, GNSS velocity noise, scale factors, vibration, GNSS dropouts, GNSS position noise,
+gyro and accelerometer bias wander, warm-up), so
 turning one error off does not change the others; noise is drawn for every epoch before the
 dropouts are removed.
 """
@@ -97,6 +103,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from scipy.signal import lfilter
 
 from sins_align.core.rotation import dcm_from_rpy
 from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ, SensorSpecs, grade_specs
@@ -574,8 +581,8 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
     accel_true = (f_b[0:-1:2] + 4.0 * f_b[1::2] + f_b[2::2]) / 6.0
     t = np.arange(n + 1) * dt
 
-    (s_bias, s_imu, s_gnss, s_scale, s_vib, s_drop,
-     s_pos) = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
+    (s_bias, s_imu, s_gnss, s_scale, s_vib, s_drop, s_pos, s_gwander, s_awander,
+     s_warm) = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(10))
     z = s_scale.standard_normal((2, 3))        # both drawn always: one off leaves the other
     sg, sa = z[0] * (gyro_scale_ppm * 1e-6), z[1] * (accel_scale_ppm * 1e-6)
     gyro_tones = accel_tones = None
@@ -593,6 +600,23 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
         ab = s_bias.normal(0.0, specs.accel_bias, 3)
         gyro += gb + s_imu.normal(0.0, specs.gyro_arw / np.sqrt(dt), (n, 3))
         accel += ab + s_imu.normal(0.0, specs.accel_vrw / np.sqrt(dt), (n, 3))
+        a = np.exp(-dt / specs.bias_correlation_time)
+        warm = s_warm.standard_normal((2, 3))        # both drawn always
+        decay = np.exp(-t[1:] / specs.warmup_time)[:, None]
+        for out, wander, q, rng, w in (
+                (gyro, specs.gyro_bias_instability, specs.gyro_quantization, s_gwander,
+                 warm[0] * specs.gyro_warmup),
+                (accel, specs.accel_bias_instability, specs.accel_quantization, s_awander,
+                 warm[1] * specs.accel_warmup)):
+            if wander > 0.0:            # first-order Gauss-Markov from its stationary state
+                x0 = rng.normal(0.0, wander, 3)
+                drive = rng.normal(0.0, wander * np.sqrt(1.0 - a * a), (n, 3))
+                out += lfilter([1.0], [1.0, -a], drive, axis=0, zi=a * x0[None])[0]
+            if np.any(w != 0.0):
+                out += w * decay
+            if q > 0.0:                 # increments quantised, the residual carried
+                out[:] = np.diff(np.round(np.cumsum(out * dt, axis=0) / q), axis=0,
+                                 prepend=0.0) * (q / dt)
 
     full = slice(0, None, 2)
     Cf, vf, wf = C[full], v[full], k["w_nb"][full]

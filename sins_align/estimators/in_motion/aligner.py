@@ -136,9 +136,12 @@ class MotionAligner(EventSource, AttitudeReadout):
     def __init__(self, config: MotionConfig):
         self.config = config
         s = config.specs
-        tau = s.bias_correlation_time
-        walk_g = s.gyro_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.gyro_bias
-        walk_a = s.accel_bias_instability * math.sqrt(2.0 / tau) or 0.01 * s.accel_bias
+        # the bias wander's random walk over short times; a warm-up as one more wander
+        tau, tw = s.bias_correlation_time, s.warmup_time
+        walk_g = (math.sqrt(2.0 * (s.gyro_bias_instability ** 2 / tau + s.gyro_warmup ** 2 / tw))
+                  or 0.01 * s.gyro_bias)
+        walk_a = (math.sqrt(2.0 * (s.accel_bias_instability ** 2 / tau
+                                   + s.accel_warmup ** 2 / tw)) or 0.01 * s.accel_bias)
         self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a)
         # (velocity_noise > 0 is checked by the config: valid whatever is measured)
         self._default_R = np.eye(3) * config.velocity_noise ** 2
@@ -548,8 +551,12 @@ class MotionAligner(EventSource, AttitudeReadout):
         for i in range(K):
             P[i][IPHI, IPHI] = Cs[i].T @ Pn @ Cs[i]
             P[i][INU, INU] = Cs[i].T @ Pv @ Cs[i]
-        P[:, IBG, IBG] = np.eye(3) * c.specs.gyro_bias ** 2
-        P[:, IBA, IBA] = np.eye(3) * c.specs.accel_bias ** 2
+        # the bias at the start: the turn-on bias plus the wander's value then (stationary)
+        sp = c.specs
+        P[:, IBG, IBG] = np.eye(3) * (sp.gyro_bias ** 2 + sp.gyro_bias_instability ** 2
+                                      + sp.gyro_warmup ** 2)
+        P[:, IBA, IBA] = np.eye(3) * (sp.accel_bias ** 2 + sp.accel_bias_instability ** 2
+                                      + sp.accel_warmup ** 2)
         i = 12
         for x in extra:
             std = {"lever": c.lever_arm_std, "mount": c.mounting_std_deg * DEG,

@@ -66,8 +66,22 @@ class AlignmentFilter(FastPath, Backtrack):
             # it would lag, be gated and diverge. The bias enters as attitude noise that
             # reaches its own size over BIAS_TRACK_TIME.
             q_att += sp.gyro_bias ** 2 * BIAS_TRACK_TIME
-        self.Qc = np.diag([q_att] * 3 + [sp.accel_vrw ** 2] * 3)
-        self._bias_var = np.array([sp.accel_bias ** 2] * 3 + [sp.gyro_bias ** 2] * 3)
+        # Bias instability (first-order Gauss-Markov wander of std s, correlation time tau):
+        # at any instant the wander is one more bias of std s, considered with the turn-on
+        # bias; and its changes move the accelerometer-levelled tilt by (change) / g. The
+        # filter, which has no accelerometer bias states, would read that apparent tilt drift
+        # as an east gyro rate, i.e. as heading (nav grade, 30 ug at tau 300 s: heading 4-9
+        # sigma off, flagged aligned). Over times short next to tau the wander is a random
+        # walk of density s sqrt(2 / tau): the same walk of the tilt (E and N), 2 s^2 /
+        # (tau g^2) rad^2/s, is level process noise, which widens the heading that the level
+        # drift gives. (The gyro's wander is covered by the considered bias alone.) A warm-up
+        # in the specs is covered as one more such wander, of its size and time constant.
+        q_lvl = q_att + 2.0 * (sp.accel_bias_instability ** 2 / sp.bias_correlation_time
+                               + sp.accel_warmup ** 2 / sp.warmup_time) / self.g ** 2
+        self.Qc = np.diag([q_lvl, q_lvl, q_att] + [sp.accel_vrw ** 2] * 3)
+        bg2 = sp.gyro_bias ** 2 + sp.gyro_bias_instability ** 2 + sp.gyro_warmup ** 2
+        ba2 = sp.accel_bias ** 2 + sp.accel_bias_instability ** 2 + sp.accel_warmup ** 2
+        self._bias_var = np.array([ba2] * 3 + [bg2] * 3)
         self.Gamma = bias_input_matrix(c.model)
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
         self._Ue, self._W = earth_poly(self.w_ie)    # exp(-(w_ie x) s) in sin, cos of W s
