@@ -103,7 +103,6 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
-from scipy.signal import lfilter
 
 from sins_align.core.rotation import dcm_from_rpy
 from sins_align.core.specs import DEG, DPH, DPSH, UG, UG_PSHZ, SensorSpecs, grade_specs
@@ -609,6 +608,8 @@ def simulate_trajectory(traj: Trajectory, rate: float = 100.0,
                 (accel, specs.accel_bias_instability, specs.accel_quantization, s_awander,
                  warm[1] * specs.accel_warmup)):
             if wander > 0.0:            # first-order Gauss-Markov from its stationary state
+                # scipy only here: the simulator's base stays numpy-only (test_strapdown)
+                from scipy.signal import lfilter
                 x0 = rng.normal(0.0, wander, 3)
                 drive = rng.normal(0.0, wander * np.sqrt(1.0 - a * a), (n, 3))
                 out += lfilter([1.0], [1.0, -a], drive, axis=0, zi=a * x0[None])[0]
