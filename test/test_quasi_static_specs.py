@@ -108,25 +108,45 @@ def test_the_real_ring_laser_log_is_not_called_inconsistent():
         assert not fit.flat and al.gyro_noise_ratio is None
 
 
-def test_the_block_path_publishes_what_the_sample_path_publishes():
+@pytest.mark.parametrize("block_size", [1000, 777])
+def test_the_block_path_publishes_what_the_sample_path_publishes(block_size):
     """update_states (replay --output, the node's block path) after the check trips: the
-    same unknown covariance and flags, sample by sample, as feeding samples one at a time."""
+    same unknown covariance, flags and status views, sample by sample, as feeding samples
+    one at a time; the check trips at the backtrack (sample 6000), a block's boundary with
+    blocks of 1000 and in the middle of one with blocks of 777."""
     r = simulate(75.0, rate=100.0, lat_deg=LAT, rpy_deg=(1, -2, 40), specs="tactical", seed=4)
     cfg = AlignConfig(latitude_deg=LAT, specs="navigation")
     one = Aligner(cfg)
     P, flags = np.empty((len(r.t), 3, 3)), np.empty(len(r.t), bool)
+    want = np.zeros(len(r.t), bool)
+    want[[5000, 5998, 5999, 6000, 6001, 6100, 7000]] = True
+    views = {}
     for i in range(len(r.t)):
         one.update(r.t[i], r.gyro[i], r.accel[i])
         P[i], flags[i] = one.covariance, one.aligned
+        if want[i]:
+            views[i] = one.view()
     block = Aligner(cfg)
-    parts = [block.update_states(r.t[k:k + 1000], r.gyro[k:k + 1000], r.accel[k:k + 1000])
-             for k in range(0, len(r.t), 1000)]
+    B = block_size
+    parts = [block.update_states(r.t[k:k + B], r.gyro[k:k + B], r.accel[k:k + B],
+                                 views=want[k:k + B]) for k in range(0, len(r.t), B)]
     cov = np.concatenate([p.covariance for p in parts])
     assert not one.specs_consistent and not block.specs_consistent
     tripped = np.all(P == np.eye(3) * math.pi ** 2, axis=(1, 2))
     assert tripped.sum() > 1000 and not tripped[:5900].any()
     np.testing.assert_allclose(cov, P, rtol=1e-8, atol=1e-18)
     assert np.array_equal(np.concatenate([p.aligned for p in parts]), flags)
+    got = {k + i: v for k, p in zip(range(0, len(r.t), B), parts) for i, v in p.views.items()}
+    assert sorted(got) == sorted(views)
+    for i, v in views.items():
+        w = got[i]
+        assert (w.status, w.specs_consistent, w.aligned) == \
+            (v.status, v.specs_consistent, v.aligned), i
+        assert (w.gyro_noise_ratio is None) == (v.gyro_noise_ratio is None), i
+        if v.gyro_noise_ratio is not None:      # (the buffer's sums: rounding apart)
+            assert w.gyro_noise_ratio == pytest.approx(v.gyro_noise_ratio, rel=1e-9), i
+        np.testing.assert_allclose(w.std_enu_deg, v.std_enu_deg, rtol=1e-6)
+    assert views[5000].specs_consistent and views[7000].status == "fault"
 
 
 def test_replay_says_it_in_its_summary(tmp_path, capsys):

@@ -213,3 +213,37 @@ def _motion_honest(tr, r, specs):
             wrong += bool(np.any(z > 3.0)) and al.aligned
     assert wrong == 0 and over <= 0.01 * (n // 10), (over, wrong)
     assert al.time_to_aligned is not None
+
+
+# ------------------------------------------------------------------ in motion: the specs check
+@pytest.mark.parametrize("seed", [1, 2])
+def test_in_motion_specs_check_counts_a_configured_warm_up(seed):
+    """car_city's MEMS (10 deg/h, 1 mg) with a warm-up of 3x its biases over 300 s,
+    simulated and configured alike: the bias states start from the bias, instability and
+    warm-up variances together, and the specs check measures the estimates in that prior's
+    std. Measured in the turn-on bias's std alone, seeds 1 and 2 reached 6.0 and 5.3 (the
+    accelerometer's) and were called worse than their specs: the attitude published as
+    unknown, never aligned at the end, for an IMU that fits its configured specs."""
+    from sins_align.core.specs import DPH, DPSH, UG, UG_PSHZ, SensorSpecs
+    from sins_align.estimators.in_motion import MotionAligner, MotionConfig
+
+    mems = SensorSpecs(gyro_bias=10.0 * DPH, gyro_arw=0.3 * DPSH, accel_bias=1000 * UG,
+                       accel_vrw=100 * UG_PSHZ)
+    sp = mems.with_(gyro_warmup=3.0 * mems.gyro_bias, accel_warmup=3.0 * mems.accel_bias,
+                    warmup_time=300.0)
+    tr = car_city()
+    r = simulate_trajectory(tr, 100.0, sp, seed=seed, gnss_rate=10.0, gnss_sigma=0.05)
+    cfg = MotionConfig(latitude_deg=tr.lat_deg, longitude_deg=tr.lon_deg, height_m=tr.height_m,
+                       specs=sp, initial_heading_std_deg=180.0, velocity_noise=0.05,
+                       vehicle="ground", nhc_axis=1, lever_arm_std=1.0,
+                       velocity_latency_std=0.1)
+    al = MotionAligner(cfg)
+    for tg, vg in zip(r.gnss_t, r.gnss_v):
+        al.add_velocity(tg, vg)
+    n = len(r.gyro)
+    for k in range(0, n, 10):
+        e = min(k + 10, n)
+        al.update(r.t[k + 1:e + 1], r.gyro[k:e], r.accel[k:e])
+    assert al.specs_consistent and al.aligned, al.bias_spec_ratio
+    # (the biases were found: their estimates of the order of the prior's std)
+    assert 1.0 < max(al.bias_spec_ratio) < 5.0, al.bias_spec_ratio

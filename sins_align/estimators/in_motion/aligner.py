@@ -143,6 +143,15 @@ class MotionAligner(EventSource, AttitudeReadout):
         walk_a = (math.sqrt(2.0 * (s.accel_bias_instability ** 2 / tau
                                    + s.accel_warmup ** 2 / tw)) or 0.01 * s.accel_bias)
         self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a)
+        # (gyro, accelerometer) bias prior variance: the turn-on bias, the wander's
+        # stationary variance and the warm-up's (the bias states' initial variance), and
+        # its std (the specs check's unit; the bias itself when there is neither)
+        self._bias_prior_var = (
+            s.gyro_bias ** 2 + s.gyro_bias_instability ** 2 + s.gyro_warmup ** 2,
+            s.accel_bias ** 2 + s.accel_bias_instability ** 2 + s.accel_warmup ** 2)
+        self._bias_prior_std = (
+            math.hypot(s.gyro_bias, s.gyro_bias_instability, s.gyro_warmup),
+            math.hypot(s.accel_bias, s.accel_bias_instability, s.accel_warmup))
         # (velocity_noise > 0 is checked by the config: valid whatever is measured)
         self._default_R = np.eye(3) * config.velocity_noise ** 2
         # its whitening (_whitened): 1 / sqrt of the diagonal and that one's outer product
@@ -216,7 +225,8 @@ class MotionAligner(EventSource, AttitudeReadout):
         #: the IMU is worse than its configured specs, and nothing published rests on them
         #: (the attitude is published as unknown) until a restart
         self.specs_consistent = True
-        #: (gyro, accelerometer): the largest |bias estimate| / configured bias std seen
+        #: (gyro, accelerometer): the largest |bias estimate| / its prior std seen (the
+        #: configured bias, bias instability and warm-up together)
         self.bias_spec_ratio = (0.0, 0.0)
         if self._aligned:
             self._aligned = False
@@ -552,11 +562,9 @@ class MotionAligner(EventSource, AttitudeReadout):
             P[i][IPHI, IPHI] = Cs[i].T @ Pn @ Cs[i]
             P[i][INU, INU] = Cs[i].T @ Pv @ Cs[i]
         # the bias at the start: the turn-on bias plus the wander's value then (stationary)
-        sp = c.specs
-        P[:, IBG, IBG] = np.eye(3) * (sp.gyro_bias ** 2 + sp.gyro_bias_instability ** 2
-                                      + sp.gyro_warmup ** 2)
-        P[:, IBA, IBA] = np.eye(3) * (sp.accel_bias ** 2 + sp.accel_bias_instability ** 2
-                                      + sp.accel_warmup ** 2)
+        vg, va = self._bias_prior_var
+        P[:, IBG, IBG] = np.eye(3) * vg
+        P[:, IBA, IBA] = np.eye(3) * va
         i = 12
         for x in extra:
             std = {"lever": c.lever_arm_std, "mount": c.mounting_std_deg * DEG,
@@ -1031,9 +1039,9 @@ class MotionAligner(EventSource, AttitudeReadout):
         ekf = self.ekf
         if ekf.K > 1:
             return
-        sp = self.config.specs
-        zg = _abs_max(ekf.bg[0].tolist()) / sp.gyro_bias if sp.gyro_bias > 0.0 else 0.0
-        za = _abs_max(ekf.ba[0].tolist()) / sp.accel_bias if sp.accel_bias > 0.0 else 0.0
+        sg, sa = self._bias_prior_std
+        zg = _abs_max(ekf.bg[0].tolist()) / sg if sg > 0.0 else 0.0
+        za = _abs_max(ekf.ba[0].tolist()) / sa if sa > 0.0 else 0.0
         g0, a0 = self.bias_spec_ratio
         self.bias_spec_ratio = (max(g0, zg), max(a0, za))
         if self.specs_consistent and max(zg, za) >= BIAS_BEYOND_SPEC:
