@@ -88,7 +88,7 @@ def test_specs_that_fit_are_never_called_inconsistent(grade, sway):
     _, al = _run(grade, grade, sway, 2, duration=70.0)
     assert al.specs_consistent and al.status != "fault"
     r = al.gyro_noise_ratio
-    assert r is None or 0.7 < r < 2.0, r
+    assert r is not None and 0.7 < r < 2.0, r
 
 
 def test_the_real_ring_laser_log_is_not_called_inconsistent():
@@ -166,6 +166,11 @@ def test_replay_says_it_in_its_summary(tmp_path, capsys):
         out[grade] = json.loads(js.read_text())
     bad, good = out["navigation"], out["tactical"]
     assert bad["status"] == "fault" and bad["gyro_noise_ratio"] > 50.0, bad["gyro_noise_ratio"]
+    assert bad["specs_consistent"] is False and good["specs_consistent"] is True
+    capsys.readouterr()
+    assert replay.main([str(bag), "--latitude", "34", "--grade", "navigation"]) == 0
+    printed = capsys.readouterr().out
+    assert "status fault" in printed and "worse than its grade" in printed, printed
     np.testing.assert_allclose(bad["final"]["std_enu_deg"], [180.0] * 3)
     assert not any(c["aligned"] for c in bad["aligned_changes"])
     assert good["status"] != "fault" and 0.7 < good["gyro_noise_ratio"] < 2.0

@@ -252,8 +252,7 @@ def config_or_error(values: dict[str, Any]):
     except ValueError as e:
         if str(e) == GRADE_REQUIRED:
             raise CliError("grade is required: pass --grade navigation|tactical|consumer (a "
-                           "MEMS IMU: consumer), or give grade or the four specs in a "
-                           "parameters file; a grade better than the IMU's makes the "
+                           "MEMS IMU: consumer); a grade better than the IMU's makes the "
                            "published covariance lie") from None
         raise CliError(f"bad parameters: {one_line(e)}") from None
 
@@ -947,6 +946,7 @@ class ReplaySession:
             "fine_velocity_noise_mps": s.get("fine_velocity_noise_mps"),
             "nis": s.get("nis"),
             "gyro_noise_ratio": s.get("gyro_noise_ratio"),
+            "specs_consistent": s.get("specs_consistent"),
         }
         if self._has_biases:
             bg, ba = bias_estimates(al)
@@ -1392,7 +1392,10 @@ def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
     lines += [
         f"  duration  {s['duration_s']:.3f} s, status {s['status']}{stage}, "
         + (f"aligned after {s['time_to_aligned_s']:.2f} s" if s["time_to_aligned_s"] is not None
-           else "never aligned") + ("" if s["aligned"] else "; not aligned at the end"),
+           else "never aligned") + ("" if s["aligned"] else "; not aligned at the end")
+        + ("" if s.get("specs_consistent", True) else
+           f"; the gyro's noise is {s['gyro_noise_ratio']:.0f} x the configured gyro_arw: "
+           f"the IMU is worse than its grade, attitude published as unknown"),
         f"  final     roll {fin['rpy_deg'][0]:.4f}  pitch {fin['rpy_deg'][1]:.4f}  "
         f"yaw {fin['rpy_deg'][2]:.4f} deg (REP-103, ENU); heading {fin['heading_deg']:.4f} deg "
         f"true",

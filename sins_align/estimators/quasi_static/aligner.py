@@ -419,8 +419,9 @@ class Aligner(EventSource, AttitudeReadout):
         """False once the gyro's noise floor is NOISE_BEYOND_SPEC times the configured one or
         more (:attr:`gyro_noise_ratio`): the IMU is worse than its specs, so their biases,
         which no data on a still base can check, cannot be trusted either; the attitude is
-        then published as unknown (pi^2 per axis, never aligned, status 'fault') until a
-        restart with the right ``grade`` or specs."""
+        then published as unknown (pi^2 per axis, never aligned, status 'fault'). A
+        restart with the same specs runs the coarse pass again (its own wide floors) and
+        trips at the next backtrack; the right ``grade`` or specs end it."""
         r = self.gyro_noise_ratio
         return r is None or r < NOISE_BEYOND_SPEC
 
