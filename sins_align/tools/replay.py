@@ -1356,7 +1356,9 @@ def _robust_limits(err: np.ndarray) -> tuple[float, float]:
 
 
 # ----------------------------------------------------------------------------- CLI
-def print_summary(s: dict[str, Any], outputs: dict[str, str], file=sys.stdout):
+def print_summary(s: dict[str, Any], outputs: dict[str, str], file=None):
+    # sys.stdout looked up when called (a default bound at import misses a redirection)
+    file = sys.stdout if file is None else file
     c = s["config"]
     fin = s["final"]
     rej = ", ".join(f"{k} {v}" for k, v in sorted(s["rejected"].items())) or "none"
