@@ -71,6 +71,22 @@ class SensorSpecs:
         """Copy with some fields replaced."""
         return replace(self, **kw)
 
+    @property
+    def bias_prior_var(self) -> tuple[float, float]:
+        """(gyro, accelerometer) variance of the bias at any instant: the turn-on bias, the
+        wander's stationary variance and the warm-up's (both estimators' bias prior)."""
+        return (self.gyro_bias ** 2 + self.gyro_bias_instability ** 2 + self.gyro_warmup ** 2,
+                self.accel_bias ** 2 + self.accel_bias_instability ** 2
+                + self.accel_warmup ** 2)
+
+    @property
+    def bias_walk_var(self) -> tuple[float, float]:
+        """(gyro, accelerometer) density of the random walk the bias wander and the warm-up
+        make over times short next to their time constants, 2 s^2 / tau summed (per s)."""
+        tau, tw = self.bias_correlation_time, self.warmup_time
+        return (2.0 * (self.gyro_bias_instability ** 2 / tau + self.gyro_warmup ** 2 / tw),
+                2.0 * (self.accel_bias_instability ** 2 / tau + self.accel_warmup ** 2 / tw))
+
 
 #: Typical grades (ALGORITHM.md table). 'navigation' is the paper's IMU.
 GRADES: dict[str, SensorSpecs] = {

@@ -137,18 +137,13 @@ class MotionAligner(EventSource, AttitudeReadout):
         self.config = config
         s = config.specs
         # the bias wander's random walk over short times; a warm-up as one more wander
-        tau, tw = s.bias_correlation_time, s.warmup_time
-        walk_g = (math.sqrt(2.0 * (s.gyro_bias_instability ** 2 / tau + s.gyro_warmup ** 2 / tw))
-                  or 0.01 * s.gyro_bias)
-        walk_a = (math.sqrt(2.0 * (s.accel_bias_instability ** 2 / tau
-                                   + s.accel_warmup ** 2 / tw)) or 0.01 * s.accel_bias)
+        wg, wa = s.bias_walk_var
+        walk_g = math.sqrt(wg) or 0.01 * s.gyro_bias
+        walk_a = math.sqrt(wa) or 0.01 * s.accel_bias
         self.noise = NoiseModel(s.gyro_arw, s.accel_vrw, walk_g, walk_a)
-        # (gyro, accelerometer) bias prior variance: the turn-on bias, the wander's
-        # stationary variance and the warm-up's (the bias states' initial variance), and
+        # (gyro, accelerometer) bias prior variance (the bias states' initial variance), and
         # its std (the specs check's unit; the bias itself when there is neither)
-        self._bias_prior_var = (
-            s.gyro_bias ** 2 + s.gyro_bias_instability ** 2 + s.gyro_warmup ** 2,
-            s.accel_bias ** 2 + s.accel_bias_instability ** 2 + s.accel_warmup ** 2)
+        self._bias_prior_var = s.bias_prior_var
         self._bias_prior_std = (
             math.hypot(s.gyro_bias, s.gyro_bias_instability, s.gyro_warmup),
             math.hypot(s.accel_bias, s.accel_bias_instability, s.accel_warmup))

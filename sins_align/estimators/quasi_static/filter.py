@@ -76,11 +76,9 @@ class AlignmentFilter(FastPath, Backtrack):
         # (tau g^2) rad^2/s, is level process noise, which widens the heading that the level
         # drift gives. (The gyro's wander is covered by the considered bias alone.) A warm-up
         # in the specs is covered as one more such wander, of its size and time constant.
-        q_lvl = q_att + 2.0 * (sp.accel_bias_instability ** 2 / sp.bias_correlation_time
-                               + sp.accel_warmup ** 2 / sp.warmup_time) / self.g ** 2
+        q_lvl = q_att + sp.bias_walk_var[1] / self.g ** 2
         self.Qc = np.diag([q_lvl, q_lvl, q_att] + [sp.accel_vrw ** 2] * 3)
-        bg2 = sp.gyro_bias ** 2 + sp.gyro_bias_instability ** 2 + sp.gyro_warmup ** 2
-        ba2 = sp.accel_bias ** 2 + sp.accel_bias_instability ** 2 + sp.accel_warmup ** 2
+        bg2, ba2 = sp.bias_prior_var
         self._bias_var = np.array([ba2] * 3 + [bg2] * 3)
         self.Gamma = bias_input_matrix(c.model)
         self._Fconst = system_matrix("constant", self.w_ie, self.g_n)
