@@ -352,9 +352,8 @@ def measure_gyro_noise(dt: np.ndarray, w: np.ndarray,
     h = median(dt)
     fs = 1.0 / h
     q = increment_quantum(w[ok] * h)
-    return GyroNoiseFit(band_noise_density(dt, w, ok, 0.2 * fs, 0.4 * fs),
-                        band_noise_density(dt, w, ok, 0.1 * fs, 0.2 * fs),
-                        q * q / (12.0 * h))
+    top, nxt = band_noise_density(dt, w, ok, [(0.2 * fs, 0.4 * fs), (0.1 * fs, 0.2 * fs)])
+    return GyroNoiseFit(top, nxt, q * q / (12.0 * h))
 
 
 def increment_quantum(x: np.ndarray) -> float:
@@ -379,16 +378,16 @@ def increment_quantum(x: np.ndarray) -> float:
     return out
 
 
-def band_noise_density(dt: np.ndarray, x: np.ndarray, ok: np.ndarray, lo: float,
-                       hi: float) -> float | None:
+def band_noise_density(dt: np.ndarray, x: np.ndarray, ok: np.ndarray,
+                       bands: list[tuple[float, float]]) -> list[float | None]:
     """The white noise density of ``x`` (M, 3; its unit squared per Hz: rad^2/s for rates)
-    in the band ``lo``-``hi`` Hz: the median of the periodograms of the segments of SEGMENT
-    consecutive samples ``ok`` (M,) holds (each less its line, Hann-windowed: the leakage
-    of a large slow motion stays within a few bins), over the bins in the band and the three
-    axes, divided by ln 2 (a white noise's periodogram ordinate is exponential). A median:
-    a few tones in the band move it little. None when no segment is whole (no hole, no
-    sample put in, intervals within 15 % of the median) or fewer than MIN_SEGMENTS, or no
-    bin is in the band."""
+    in each band ``(lo, hi)`` Hz of ``bands``: the median of the periodograms of the
+    segments of SEGMENT consecutive samples ``ok`` (M,) holds (each less its line,
+    Hann-windowed: the leakage of a large slow motion stays within a few bins), over the
+    bins in the band and the three axes, divided by ln 2 (a white noise's periodogram
+    ordinate is exponential). A median: a few tones in the band move it little. None for
+    every band when fewer than MIN_SEGMENTS segments are whole (no hole, no sample put in,
+    intervals within 15 % of the median), for a band that holds no bin."""
     h = median(dt)
     good = ok & (np.abs(dt - h) <= 0.15 * h)
     starts, k = [], 0
@@ -397,17 +396,21 @@ def band_noise_density(dt: np.ndarray, x: np.ndarray, ok: np.ndarray, lo: float,
             starts.append(k)
             k += SEGMENT
         k = b + 1
-    f = np.fft.rfftfreq(SEGMENT, h)
-    band = (f >= lo) & (f <= hi)
-    if len(starts) < MIN_SEGMENTS or not band.any():
-        return None
+    if len(starts) < MIN_SEGMENTS:
+        return [None] * len(bands)
     seg = x[np.asarray(starts)[:, None] + np.arange(SEGMENT)]        # (S, SEGMENT, 3)
     tt = np.arange(SEGMENT) - 0.5 * (SEGMENT - 1)
     seg = seg - seg.mean(axis=1, keepdims=True)
     seg = seg - tt[None, :, None] * (np.einsum("j,sjk->sk", tt, seg) / np.dot(tt, tt))[:, None]
     win = np.hanning(SEGMENT)
-    spec = np.abs(np.fft.rfft(seg * win[None, :, None], axis=1)[:, band]) ** 2
-    return float(np.median(spec) * h / np.dot(win, win) / math.log(2.0))
+    spec = np.abs(np.fft.rfft(seg * win[None, :, None], axis=1)) ** 2
+    f = np.fft.rfftfreq(SEGMENT, h)
+    out = []
+    for lo, hi in bands:
+        band = (f >= lo) & (f <= hi)
+        out.append(float(np.median(spec[:, band]) * h / np.dot(win, win) / math.log(2.0))
+                   if band.any() else None)
+    return out
 
 
 def velocity_random_walk(d: np.ndarray, p: float, q0: float = 0.0, z: float = 2.0,
