@@ -467,8 +467,7 @@ def checked_values(values: dict[str, Any]) -> dict[str, Any]:
         raise ValueError("navsat_topic needs a velocity_topic (only the in-motion alignment "
                          "takes positions; without one the latitude and height parameters "
                          "are used)")
-    if not merged["grade"] and any(merged[k] < 0.0 for k in _SPEC_UNITS):
-        raise ValueError(GRADE_REQUIRED)
+    sensor_specs(merged)            # GRADE_REQUIRED without a grade or all four specs
     return merged
 
 
