@@ -213,6 +213,9 @@ class Aligner(EventSource, AttitudeReadout):
         self._dt_seen: list[float] = []
         self.nominal_dt = 1.0 / c.rate_hz if c.rate_hz else None
         self._units = UnitsMonitor(self) if c.units_check_window > 0 else None
+        # gyro_noise_ratio of the filter's GyroNoiseFit, kept with the fit it was taken from
+        # (read after every sample, it changes only at a backtrack)
+        self._noise = (None, None)
         self._recent = RecentMotion()
         self._fb_source = self._fb_floats = None     # _force_blocks' conversion
         self.units_suspect = False
@@ -406,13 +409,15 @@ class Aligner(EventSource, AttitudeReadout):
         angle increments' own quantum gives (a navigation gyro's 4-arcsec counts read 80x
         the preset's noise), or gyro_arw is 0."""
         fit = self.filter.gyro_noise
-        arw = self.config.specs.gyro_arw
-        if fit is None or not fit.flat or arw <= 0.0:
-            return None
-        floor = min(fit.q_top, fit.q_next)
-        if floor <= 4.0 * fit.q_quant:
-            return None             # the increments' quantization explains it
-        return math.sqrt(floor) / arw
+        if fit is not self._noise[0]:
+            arw = self.config.specs.gyro_arw
+            ratio = None
+            if fit is not None and fit.flat and arw > 0.0:
+                floor = min(fit.q_top, fit.q_next)
+                if floor > 4.0 * fit.q_quant:   # else the increments' quantization explains it
+                    ratio = math.sqrt(floor) / arw
+            self._noise = (fit, ratio)
+        return self._noise[1]
 
     @property
     def specs_consistent(self) -> bool:
