@@ -831,10 +831,7 @@ class MotionAligner(EventSource, AttitudeReadout):
                 self._snapshot(t_now)
                 # (a long block: the stored states no rewind can reach any more go now,
                 # not all at its end; _prune does the rest)
-                snaps = self._snaps
-                keep = t_now - c.max_measurement_lag - _HISTORY_MARGIN
-                while len(snaps) > 1 and snaps[1][0] < keep:
-                    snaps.popleft()
+                self._drop_snapshots(t_now)
 
     def _apply(self, item, t_now):
         ts, _, kind, payload = item
@@ -1198,10 +1195,16 @@ class MotionAligner(EventSource, AttitudeReadout):
                             self._best, _replayed_counts(self.events),
                             self._step_mode))
 
+    def _drop_snapshots(self, t_now: float) -> None:
+        """The stored states no measurement arriving after ``t_now`` can rewind to (older
+        than ``max_measurement_lag`` and a margin) go; the newest of those stays."""
+        keep = t_now - self.config.max_measurement_lag - _HISTORY_MARGIN
+        snaps = self._snaps
+        while len(snaps) > 1 and snaps[1][0] < keep:
+            snaps.popleft()
+
     def _prune(self):
-        keep = self.t_last - self.config.max_measurement_lag - _HISTORY_MARGIN
-        while len(self._snaps) > 1 and self._snaps[1][0] < keep:
-            self._snaps.popleft()
+        self._drop_snapshots(self.t_last)
         t_s = self._snaps[0][0]
         while self._history and self._history[0][0][-1] <= t_s:
             self._history.popleft()
